@@ -1,0 +1,47 @@
+# Two commands do all the set-up on a fresh machine with Python 3.11 and pip:
+#   make run   - create .venv, install, run the default workflow, print where the report is
+#   make test  - same bootstrap, run the test suite
+# Further targets: lint, crosscheck (ross, separate heavy environment), bench.
+
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+ROSS_VENV := .venv-ross
+ROSS_STAMP := $(ROSS_VENV)/.installed
+CORES ?= 2
+REPORT := results/report.html
+
+.PHONY: run test lint crosscheck bench clean
+
+$(STAMP): requirements.txt pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	touch $@
+
+run: $(STAMP)
+	$(BIN)/snakemake --cores $(CORES)
+	$(BIN)/snakemake --report $(REPORT)
+	@echo "Report: $(abspath $(REPORT))  (tables and figures under results/<machine>/)"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest
+
+lint: $(STAMP)
+	$(BIN)/snakemake --lint
+
+$(ROSS_STAMP): requirements-ross.txt pyproject.toml
+	$(PYTHON) -m venv $(ROSS_VENV)
+	$(ROSS_VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r requirements-ross.txt
+	$(ROSS_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	touch $@
+
+crosscheck: $(ROSS_STAMP)
+	$(ROSS_VENV)/bin/python -m pytest tests/crosscheck
+
+bench: $(ROSS_STAMP)
+	$(ROSS_VENV)/bin/python benchmarks/bench_rotor.py
+
+clean:
+	rm -rf results logs .snakemake

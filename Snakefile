@@ -1,0 +1,21 @@
+# ambid: AMB identification and rotor model updating.  Thin entry point: configuration,
+# validation, report, the stage rule files and the default target.
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+report: "workflow/report/workflow.rst"
+
+
+include: "rules/common.smk"
+include: "rules/model.smk"
+
+
+rule all:
+    input:
+        all_outputs(),
+    default_target: True

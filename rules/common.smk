@@ -1,0 +1,75 @@
+# Configuration validation, machine models, input functions and the library digest.
+import hashlib
+from pathlib import Path
+
+import yaml
+from snakemake.exceptions import WorkflowError
+from snakemake.utils import validate
+
+from ambid.errors import ConfigError
+from ambid.machine import machine_from_config
+
+validate(config, schema="../workflow/schemas/config.schema.yaml")
+
+MODEL_VARIANTS = ["nominal"]
+
+
+def load_machine_config(name):
+    """Read and validate one machine model; raise naming the file and key at fault."""
+    path = config["machines"][name]["model"]
+    try:
+        with open(path) as handle:
+            machine_config = yaml.safe_load(handle)
+    except (OSError, yaml.YAMLError) as error:
+        raise ConfigError(f"machines.{name}.model", f"cannot read {path}: {error}") from None
+    if not isinstance(machine_config, dict):
+        raise ConfigError(f"machines.{name}.model", f"{path} does not hold a mapping")
+    try:
+        validate(machine_config, schema="../workflow/schemas/machine.schema.yaml")
+    except WorkflowError as error:
+        raise ConfigError(f"machines.{name}.model", f"{path} does not match the machine schema: {error}") from None
+    machine_from_config(machine_config, name=name, source=path)  # cross-reference checks
+    return machine_config
+
+
+MACHINE_CONFIGS = {name: load_machine_config(name) for name in config["machines"]}
+
+
+wildcard_constraints:
+    machine="|".join(MACHINE_CONFIGS),
+    variant="|".join(MODEL_VARIANTS),
+
+
+def library_digest():
+    """SHA-256 of the ambid sources: a param, so rules rerun when the library changes."""
+    digest = hashlib.sha256()
+    for source in sorted((Path(workflow.basedir) / "workflow" / "ambid").rglob("*.py")):
+        digest.update(source.name.encode())
+        digest.update(source.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+LIBRARY_DIGEST = library_digest()
+
+
+def machine_model_file(wildcards):
+    return config["machines"][wildcards.machine]["model"]
+
+
+def machine_config(wildcards):
+    return MACHINE_CONFIGS[wildcards.machine]
+
+
+def all_outputs():
+    return expand(
+        [
+            "results/{machine}/model/{variant}/modes.tsv",
+            "results/{machine}/model/{variant}/plant_frf.parquet",
+            "results/{machine}/model/{variant}/stability.tsv",
+            "results/{machine}/model/{variant}/figures/plant_bode.png",
+            "results/{machine}/model/{variant}/figures/axial_bode.png",
+            "results/{machine}/model/{variant}/figures/mode_shapes.png",
+        ],
+        machine=MACHINE_CONFIGS,
+        variant=MODEL_VARIANTS,
+    )

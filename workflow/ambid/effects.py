@@ -1,0 +1,407 @@
+"""The effect library: named, parameterised pieces of physics that change the plant.
+
+An effect acts at one of three places (DESIGN.md)::
+
+    P(jw) = Output(jw) . C_s [K - w^2 M + jw (D + Omega G) - B kx B^T]^-1 B . Input(jw)
+
+* ``structure`` effects change the machine itself (`Effect.apply`): rotor
+  stiffness, damping, speed, sensor positions, housings;
+* ``input`` effects shape the force a commanded control current produces
+  (`Effect.response`, a matrix per frequency acting on the currents);
+* ``output`` effects shape what the sensors report.
+
+The measured coil currents see only the amplifier, which lets data tell an
+amplifier from a sensor.  Effects are registered by name, so adding one to a
+model is a config change::
+
+    effects:
+      - name: delay
+        parameters: {delay_s: 3.0e-5}
+
+The same library serves the virtual rig (truth = nominal machine + effects with
+true parameters) and the model (nominal machine + the effects the user added).
+"""
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import ConfigError
+from .machine import ALL_AXES, Foundation
+
+__all__ = ["Parameter", "Effect", "EFFECTS", "register", "effect_from_config", "split_effects"]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """Declaration of one effect parameter.
+
+    ``lower``/``upper`` are physical bounds (checked on input, used as search
+    bounds by the diagnosis); ``default`` None means required.
+    """
+
+    unit: str
+    description: str
+    default: object = None
+    lower: float | None = None
+    upper: float | None = None
+    kind: str = "float"  # float | floats (scalar or list) | axes | string
+
+
+EFFECTS = {}
+
+
+def register(cls):
+    """Class decorator adding an effect to the registry under ``cls.name``."""
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+class Effect:
+    """Base class; subclasses set ``name``, ``location``, ``parameters`` and implement
+    `apply` (structure) or `response` (input / output)."""
+
+    name = ""
+    location = ""
+    parameters = {}
+
+    def __init__(self, **values):
+        unknown = set(values) - set(self.parameters)
+        if unknown:
+            raise ConfigError(f"parameters.{sorted(unknown)[0]}", f"unknown parameter of effect {self.name!r}")
+        self.values = {}
+        for key, spec in self.parameters.items():
+            value = values.get(key, spec.default)
+            if value is None:
+                raise ConfigError(f"parameters.{key}", f"required by effect {self.name!r} [{spec.unit}]")
+            self.values[key] = _check_value(value, spec, f"parameters.{key}")
+        self.validate()
+
+    def validate(self):
+        """Checks between parameters that need no machine; raise ConfigError."""
+
+    def __getattr__(self, key):
+        values = self.__dict__.get("values", {})
+        if key in values:
+            return values[key]
+        raise AttributeError(key)
+
+    def __repr__(self):
+        args = ", ".join(f"{k}={v!r}" for k, v in self.values.items())
+        return f"{type(self).__name__}({args})"
+
+    def to_config(self):
+        """The ``effects:`` entry that recreates this effect."""
+        return {"name": self.name, "parameters": {k: _plain(v) for k, v in self.values.items()}}
+
+    def check(self, machine):
+        """Cross-check parameters against the machine (tags, positions); raise ConfigError."""
+
+    def apply(self, machine):
+        """Structure effects: the modified machine."""
+        raise NotImplementedError
+
+    def response(self, frequency_hz, axes):
+        """Input/output effects: array (n_freq, n_axes, n_axes) acting on the given axes."""
+        raise NotImplementedError
+
+    # helpers for diagonal per-axis effects
+    def _diagonal(self, scalar_response, frequency_hz, axes):
+        out = np.zeros((len(frequency_hz), len(axes), len(axes)), dtype=complex)
+        active = set(self.values.get("axes", ALL_AXES))
+        for k, axis in enumerate(axes):
+            out[:, k, k] = scalar_response if axis in active else 1.0
+        return out
+
+
+def _plain(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def _check_value(value, spec, path):
+    if spec.kind == "string":
+        if not isinstance(value, str):
+            raise ConfigError(path, f"must be a string, got {value!r}")
+        return value
+    if spec.kind == "axes":
+        axes = tuple(value)
+        bad = [a for a in axes if a not in ALL_AXES]
+        if bad:
+            raise ConfigError(path, f"unknown axis {bad[0]!r}; axes are {list(ALL_AXES)}")
+        return axes
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(path, f"must be numeric, got {value!r}") from None
+    if spec.kind == "float" and array.ndim != 0:
+        raise ConfigError(path, "must be a single number")
+    if not np.all(np.isfinite(array)):
+        raise ConfigError(path, "must be finite")
+    if spec.lower is not None and np.any(array < spec.lower):
+        raise ConfigError(path, f"must be >= {spec.lower} {spec.unit}, got {value}")
+    if spec.upper is not None and np.any(array > spec.upper):
+        raise ConfigError(path, f"must be <= {spec.upper} {spec.unit}, got {value}")
+    return float(array) if array.ndim == 0 else tuple(array.tolist())
+
+
+def effect_from_config(spec, path, machine=None):
+    """Build an effect from an ``effects:`` entry ``{name: ..., parameters: {...}}``."""
+    if not isinstance(spec, dict) or "name" not in spec:
+        raise ConfigError(f"{path}.name", "an effect needs a name")
+    name = spec["name"]
+    if name not in EFFECTS:
+        raise ConfigError(f"{path}.name", f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
+    extra = set(spec) - {"name", "parameters"}
+    if extra:
+        raise ConfigError(f"{path}.{sorted(extra)[0]}", "unknown key (effect settings go under 'parameters')")
+    try:
+        effect = EFFECTS[name](**(spec.get("parameters") or {}))
+        if machine is not None:
+            effect.check(machine)
+    except ConfigError as error:
+        raise error.within(path) from None
+    return effect
+
+
+AXES = Parameter("-", "control axes the effect acts on", default=ALL_AXES, kind="axes")
+
+
+# ------------------------------------------------------------------ input side
+@register
+class AmplifierLowpass(Effect):
+    """Current-control loop of the power amplifier as a first-order low-pass.
+
+    ``F(s) = 1 / (1 + s / (2 pi f_c))`` between commanded and coil current.
+    Fingerprint: -3 dB and -45 deg at f_c, phase lag ``atan(f / f_c)``; the
+    measured coil currents show it too, the position sensors alone cannot
+    distinguish it from a sensor low-pass.
+    """
+
+    name = "amplifier_lowpass"
+    location = "input"
+    parameters = {"cutoff_hz": Parameter("Hz", "amplifier current-loop bandwidth", lower=1.0, upper=1e6), "axes": AXES}
+
+    def response(self, frequency_hz, axes):
+        return self._diagonal(1.0 / (1.0 + 1j * np.asarray(frequency_hz) / self.cutoff_hz), frequency_hz, axes)
+
+
+@register
+class EddyCurrent(Effect):
+    """Lossy actuator: eddy currents in the laminations delay the force.
+
+    Flux diffusion into laminations gives a half-order lag
+    ``F(s) = 1 / sqrt(1 + s / (2 pi f_e))``.  Fingerprint: -10 dB/decade above
+    f_e and a phase tending to -45 deg, unlike any rational low-pass; the coil
+    currents do not see it.
+    """
+
+    name = "eddy_current"
+    location = "input"
+    parameters = {"corner_hz": Parameter("Hz", "eddy-current corner frequency f_e", lower=1.0, upper=1e6), "axes": AXES}
+
+    def response(self, frequency_hz, axes):
+        return self._diagonal(1.0 / np.sqrt(1.0 + 1j * np.asarray(frequency_hz) / self.corner_hz), frequency_hz, axes)
+
+
+@register
+class CrossCoupling(Effect):
+    """Magnetic (input side) or sensor (output side) coupling between the x and y axes of a bearing.
+
+    The coupling matrix is ``I + c (E_xy + E_yx)`` on (DX, DY) and (NX, NY):
+    a current in DX also pulls along DY with ``c`` times its force.  Fingerprint:
+    off-diagonal plant terms ``c P_ii`` where the nominal model has none.
+    """
+
+    name = "cross_coupling"
+    location = "input"
+    parameters = {
+        "coefficient": Parameter("-", "coupling ratio c", lower=-0.5, upper=0.5),
+        "side": Parameter("-", "'input' (forces) or 'output' (sensors)", default="input", kind="string"),
+    }
+
+    def validate(self):
+        if self.side not in ("input", "output"):
+            raise ConfigError("parameters.side", f"must be 'input' or 'output', got {self.side!r}")
+        self.location = self.side
+
+    def response(self, frequency_hz, axes):
+        matrix = np.eye(len(axes), dtype=complex)
+        for a, b in (("DX", "DY"), ("NX", "NY")):
+            if a in axes and b in axes:
+                i, j = axes.index(a), axes.index(b)
+                matrix[i, j] = matrix[j, i] = self.coefficient
+        return np.broadcast_to(matrix, (len(frequency_hz),) + matrix.shape).copy()
+
+
+# ----------------------------------------------------------------- output side
+@register
+class SensorLowpass(Effect):
+    """Position sensor / anti-alias filter bandwidth.
+
+    Order 1: ``1 / (1 + s/w_c)``; order 2: Butterworth ``w_c^2 / (s^2 + sqrt(2) w_c s + w_c^2)``.
+    Fingerprint: phase lag growing with frequency, magnitude -3 dB at f_c, on
+    positions only (coil currents unaffected).
+    """
+
+    name = "sensor_lowpass"
+    location = "output"
+    parameters = {
+        "cutoff_hz": Parameter("Hz", "sensor bandwidth", lower=1.0, upper=1e6),
+        "order": Parameter("-", "filter order, 1 or 2", default=1.0, lower=1, upper=2),
+        "axes": AXES,
+    }
+
+    def response(self, frequency_hz, axes):
+        s = 1j * np.asarray(frequency_hz) / self.cutoff_hz
+        scalar = 1.0 / (1.0 + s) if self.order == 1 else 1.0 / (s**2 + np.sqrt(2) * s + 1.0)
+        return self._diagonal(scalar, frequency_hz, axes)
+
+    def validate(self):
+        if self.order not in (1.0, 2.0):
+            raise ConfigError("parameters.order", "must be 1 or 2")
+
+
+@register
+class Delay(Effect):
+    """Sample-and-hold and computation delay of the digital controller.
+
+    ``exp(-s tau)``.  A zero-order hold alone is about half a controller cycle;
+    one cycle of computation adds T.  Fingerprint: magnitude unchanged, phase
+    lag 360 f tau degrees growing linearly with frequency.
+    """
+
+    name = "delay"
+    location = "output"
+    parameters = {"delay_s": Parameter("s", "pure time delay tau", lower=0.0, upper=0.01), "axes": AXES}
+
+    def response(self, frequency_hz, axes):
+        return self._diagonal(np.exp(-2j * np.pi * np.asarray(frequency_hz) * self.delay_s), frequency_hz, axes)
+
+
+# ------------------------------------------------------------------- structure
+@register
+class ElementStiffness(Effect):
+    """Young's modulus of a tagged element group scaled (laminations, shrink fits).
+
+    ``scale`` is one factor for the group or one per element of the group (in
+    element order).  This is what the model update (thesis ch. 5.2) adjusts.
+    Fingerprint: flexible resonances and anti-resonances move, rigid-body
+    behaviour is unchanged.
+    """
+
+    name = "element_stiffness"
+    location = "structure"
+    parameters = {
+        "tag": Parameter("-", "element tag of the group", kind="string"),
+        "scale": Parameter("-", "factor(s) on E of the group", lower=1e-6, upper=100.0, kind="floats"),
+    }
+
+    def check(self, machine):
+        group = machine.rotor.elements_tagged(self.tag)
+        if not group:
+            raise ConfigError("parameters.tag", f"no element carries the tag {self.tag!r}")
+        if isinstance(self.scale, tuple) and len(self.scale) != len(group):
+            raise ConfigError("parameters.scale", f"the group {self.tag!r} has {len(group)} elements, got {len(self.scale)} factors")
+
+    def apply(self, machine):
+        group = machine.rotor.elements_tagged(self.tag)
+        return replace(machine, rotor=machine.rotor.with_youngs_modulus_scaled(group, self.scale))
+
+
+@register
+class ModalDamping(Effect):
+    """Additional viscous damping of the flexible modes (joints, laminations, eddy losses).
+
+    ``damping_ratio`` is one value for all retained flexible modes or one per
+    flexible mode (lowest first); it adds ``2 zeta_k omega_k`` to the modal
+    damping of the free-free mode k.  Fingerprint: resonance peaks lower and
+    wider, frequencies unchanged.
+    """
+
+    name = "modal_damping"
+    location = "structure"
+    parameters = {"damping_ratio": Parameter("-", "added damping ratio zeta", lower=0.0, upper=0.5, kind="floats")}
+
+    def apply(self, machine):
+        ratios = np.atleast_1d(np.asarray(self.damping_ratio, dtype=float))
+        return replace(machine, added_modal_damping=tuple(ratios.tolist()))
+
+
+@register
+class Gyroscopic(Effect):
+    """Rotation at ``speed_rpm``: the gyroscopic term Omega G of thesis eq. 2.1.
+
+    Without this effect the machine is modelled at standstill, as in the
+    thesis' identification.  Fingerprint: each bending resonance splits into a
+    backward (lower) and a forward (higher) whirl, the split growing with
+    speed, and the x and y axes become coupled.
+    """
+
+    name = "gyroscopic"
+    location = "structure"
+    parameters = {"speed_rpm": Parameter("rpm", "rotational speed", lower=0.0, upper=1e6)}
+
+    def apply(self, machine):
+        return replace(machine, speed_rad_s=self.speed_rpm * 2 * np.pi / 60)
+
+
+@register
+class Noncollocation(Effect):
+    """Sensors displaced axially from where the model assumes them.
+
+    ``de_offset_m`` and ``nde_offset_m`` move the DE and NDE sensors along z.
+    Fingerprint: the anti-resonances of the same-axis channels move (and can
+    vanish past a mode's node), poles do not.
+    """
+
+    name = "noncollocation"
+    location = "structure"
+    parameters = {
+        "de_offset_m": Parameter("m", "axial sensor shift at the drive end", default=0.0, lower=-1.0, upper=1.0),
+        "nde_offset_m": Parameter("m", "axial sensor shift at the non-drive end", default=0.0, lower=-1.0, upper=1.0),
+    }
+
+    def check(self, machine):
+        for bearing, key in (("DE", "de_offset_m"), ("NDE", "nde_offset_m")):
+            z = machine.bearing(bearing).sensor_position_m + self.values[key]
+            if not 0 <= z <= machine.rotor.length_m:
+                raise ConfigError(f"parameters.{key}", f"moves the {bearing} sensor off the rotor (z = {z:.4g} m)")
+
+    def apply(self, machine):
+        offsets = {"DE": self.de_offset_m, "NDE": self.nde_offset_m}
+        bearings = tuple(replace(b, sensor_position_m=b.sensor_position_m + offsets[b.name]) for b in machine.radial_bearings)
+        return replace(machine, radial_bearings=bearings)
+
+
+@register
+class FoundationMode(Effect):
+    """Flexible housing: each radial bearing's stator and sensor on a mass-spring-damper.
+
+    The AMB force acts between rotor and housing and the sensor measures their
+    relative displacement.  Fingerprint: an extra resonance / anti-resonance
+    pair near ``frequency_hz`` on every radial channel.
+    """
+
+    name = "foundation_mode"
+    location = "structure"
+    parameters = {
+        "mass_kg": Parameter("kg", "housing mass per bearing", lower=1e-3, upper=1e5),
+        "frequency_hz": Parameter("Hz", "housing natural frequency on its support", lower=0.1, upper=1e5),
+        "damping_ratio": Parameter("-", "housing damping ratio", default=0.02, lower=0.0, upper=1.0),
+    }
+
+    def apply(self, machine):
+        return replace(machine, foundation=Foundation(self.mass_kg, self.frequency_hz, self.damping_ratio))
+
+
+def split_effects(effects):
+    """Effects grouped by where they act: (structure, input, output)."""
+    groups = {"structure": [], "input": [], "output": []}
+    for effect in effects:
+        groups[effect.location].append(effect)
+    return groups["structure"], groups["input"], groups["output"]
+

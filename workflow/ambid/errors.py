@@ -1,0 +1,42 @@
+"""The project's own exceptions.
+
+Every error that a user can cause (a bad config, a malformed log, an ill-posed
+computation) is raised as an `AmbidError` subclass that names the file, key or
+line at fault, so the workflow fails with a message a machine engineer can act on.
+"""
+
+__all__ = ["AmbidError", "ConfigError", "ModelError"]
+
+
+class AmbidError(Exception):
+    """Base class of all errors raised by ambid."""
+
+
+class ConfigError(AmbidError):
+    """An inconsistent or invalid configuration.
+
+    Parameters
+    ----------
+    key : str
+        Dotted path of the offending key, e.g. ``machines.hs_eden_like.rotor.elements[3].length_m``.
+    message : str
+        What is wrong with it.
+    source : str, optional
+        The file the key came from.
+    """
+
+    def __init__(self, key, message, source=None):
+        self.key = key
+        self.message = message
+        self.source = source
+        where = f"{source}: " if source else ""
+        super().__init__(f"{where}{key}: {message}")
+
+    def within(self, prefix=None, source=None):
+        """The same error with its key nested under ``prefix`` and/or its file set."""
+        key = f"{prefix}.{self.key}" if prefix and not self.key.startswith(prefix) else self.key
+        return ConfigError(key, self.message, source=source or self.source)
+
+
+class ModelError(AmbidError):
+    """A model that cannot be evaluated (singular, unstable where stability is required, ...)."""

@@ -1,0 +1,149 @@
+"""File formats at the edge of the library: Parquet with units, tables, atomic writes.
+
+Every Parquet file written by ambid carries its schema version and the unit of
+each column in the file metadata (keys ``ambid.schema_version``,
+``ambid.units`` as JSON, ``ambid.kind``).  Parquet has no complex type, so
+complex values are stored as ``re`` / ``im`` columns.  Writes go to a
+temporary file in the same directory that is renamed into place, so a crash
+never leaves a half-written result.
+"""
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .errors import AmbidError
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "atomic_path",
+    "write_parquet",
+    "read_parquet",
+    "write_tsv",
+    "frf_frame",
+    "frf_from_frame",
+]
+
+SCHEMA_VERSION = "1"
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path``; rename it to ``path`` on success only."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_parquet(frame, path, units, kind, metadata=None):
+    """Write a DataFrame as Parquet with schema version, kind and column units.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+    path : str or Path
+    units : dict
+        Column name -> unit string; every numeric column must have one.
+    kind : str
+        What the file holds (``plant_frf``, ``identification_log``, ...).
+    metadata : dict, optional
+        Further JSON-serialisable metadata (machine, model variant, ...).
+    """
+    missing = [c for c in frame.columns if pd.api.types.is_numeric_dtype(frame[c]) and c not in units]
+    if missing:
+        raise AmbidError(f"{path}: no unit given for column(s) {missing}")
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    extra = {
+        "ambid.schema_version": SCHEMA_VERSION,
+        "ambid.kind": kind,
+        "ambid.units": json.dumps(units, sort_keys=True),
+        "ambid.metadata": json.dumps(metadata or {}, sort_keys=True),
+    }
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), **{k: v.encode() for k, v in extra.items()}})
+    with atomic_path(path) as temporary:
+        pq.write_table(table, temporary)
+
+
+def read_parquet(path, kind=None):
+    """Read a Parquet file written by `write_parquet`.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+    info : dict
+        ``schema_version``, ``kind``, ``units`` and ``metadata``.
+
+    Raises
+    ------
+    AmbidError
+        If the file lacks ambid metadata, has another schema version or kind.
+    """
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowInvalid) as error:
+        raise AmbidError(f"{path}: not a readable Parquet file ({error})") from None
+    raw = table.schema.metadata or {}
+    if b"ambid.schema_version" not in raw:
+        raise AmbidError(f"{path}: no ambid metadata (schema version, units)")
+    info = {
+        "schema_version": raw[b"ambid.schema_version"].decode(),
+        "kind": raw.get(b"ambid.kind", b"").decode(),
+        "units": json.loads(raw.get(b"ambid.units", b"{}")),
+        "metadata": json.loads(raw.get(b"ambid.metadata", b"{}")),
+    }
+    if info["schema_version"] != SCHEMA_VERSION:
+        raise AmbidError(f"{path}: schema version {info['schema_version']}, this ambid reads {SCHEMA_VERSION}")
+    if kind is not None and info["kind"] != kind:
+        raise AmbidError(f"{path}: holds {info['kind']!r}, expected {kind!r}")
+    return table.to_pandas(), info
+
+
+def write_tsv(rows, path, float_format="%.6g"):
+    """Write a list of dicts (or a DataFrame) as a tab-separated table, atomically."""
+    frame = rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows)
+    with atomic_path(path) as temporary:
+        frame.to_csv(temporary, sep="\t", index=False, float_format=float_format)
+
+
+def frf_frame(frequency_hz, response, outputs, inputs):
+    """Long-format table of a MIMO FRF: one row per (output, input, frequency).
+
+    Parameters
+    ----------
+    frequency_hz : array (n_f,)
+    response : complex array (n_f, n_out, n_in)
+    outputs, inputs : sequences of axis names
+    """
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    n_f, n_out, n_in = response.shape
+    out_index, in_index, f_index = np.meshgrid(np.arange(n_out), np.arange(n_in), np.arange(n_f), indexing="ij")
+    values = response[f_index, out_index, in_index].ravel()
+    return pd.DataFrame(
+        {
+            "output": np.asarray(outputs)[out_index.ravel()],
+            "input": np.asarray(inputs)[in_index.ravel()],
+            "frequency_hz": frequency_hz[f_index.ravel()],
+            "re": values.real,
+            "im": values.imag,
+        }
+    )
+
+
+def frf_from_frame(frame, output, input):
+    """Frequencies and complex values of one channel of an `frf_frame` table."""
+    channel = frame[(frame["output"] == output) & (frame["input"] == input)].sort_values("frequency_hz")
+    return channel["frequency_hz"].to_numpy(), channel["re"].to_numpy() + 1j * channel["im"].to_numpy()

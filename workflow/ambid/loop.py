@@ -1,0 +1,125 @@
+"""Closed-loop transfer functions (thesis Table 4.1) and stability margins.
+
+Thesis Table 4.1 writes the controller ``C`` (V1 -> U1) with the feedback sign
+inside it; with our PID ``C_pid`` (error -> current) that is ``C = -C_pid``::
+
+    input sensitivity      E  -> V1   (I - P C)^-1
+    dynamic compliance     Eu -> V2   (I - P C)^-1 P
+    dynamic stiffness      V2 -> Eu   P^-1 - C
+    output sensitivity     Eu -> U2   (I - C P)^-1
+    open loop (Nyquist)    V1 -> V2   P C
+
+Stability is judged two ways: the eigenvalues of the sampled-data closed loop
+(`ambid.plant.Plant.closed_loop_poles`) and the peak of the sensitivity
+function per axis, graded by the zones of ISO 14839-3 (A < 9.5 dB, B < 12 dB,
+C < 14 dB, D above).
+"""
+
+import numpy as np
+
+from .machine import AXIAL_AXIS, RADIAL_AXES
+from .plant import damping_ratio
+
+__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone"]
+
+ISO_14839_ZONES = ((3.0, "A"), (4.0, "B"), (5.0, "C"))
+
+
+def iso_zone(sensitivity_peak):
+    """ISO 14839-3 zone of a sensitivity peak (linear magnitude)."""
+    for limit, zone in ISO_14839_ZONES:
+        if sensitivity_peak < limit:
+            return zone
+    return "D"
+
+
+def _functions(plant_response, controller_response):
+    """Table 4.1 from P (n_f, n, n) and C = -C_pid (n_f,) on all axes."""
+    n = plant_response.shape[-1]
+    identity = np.eye(n)
+    controller = controller_response[:, None, None] * identity
+    open_loop = plant_response @ controller
+    input_sensitivity = np.linalg.inv(identity - open_loop)
+    return {
+        "controller": controller,
+        "open_loop": open_loop,
+        "input_sensitivity": input_sensitivity,
+        "dynamic_compliance": input_sensitivity @ plant_response,
+        "dynamic_stiffness": np.linalg.inv(plant_response) - controller,
+        "output_sensitivity": np.linalg.inv(identity - controller @ plant_response),
+    }
+
+
+def transfer_functions(plant, frequency_hz):
+    """The transfer functions of thesis Table 4.1 for the radial axes.
+
+    Parameters
+    ----------
+    plant : ambid.plant.Plant
+    frequency_hz : array (n_f,)
+
+    Returns
+    -------
+    dict of arrays (n_f, 4, 4)
+        ``plant``, ``controller``, ``open_loop``, ``input_sensitivity``,
+        ``dynamic_compliance``, ``dynamic_stiffness``, ``output_sensitivity``.
+    """
+    plant_response = plant.radial_frequency_response(frequency_hz)
+    controller = -plant.machine.radial_controller.frequency_response(frequency_hz)
+    return {"plant": plant_response, **_functions(plant_response, controller)}
+
+
+def axial_transfer_functions(plant, frequency_hz):
+    """Table 4.1 for the axial axis; arrays (n_f, 1, 1)."""
+    plant_response = plant.axial_frequency_response(frequency_hz)[:, None, None]
+    controller = -plant.machine.axial_controller.frequency_response(frequency_hz)
+    return {"plant": plant_response, **_functions(plant_response, controller)}
+
+
+def stability_summary(plant, frequency_hz=None):
+    """Closed-loop stability and sensitivity margins per axis.
+
+    Parameters
+    ----------
+    plant : ambid.plant.Plant
+    frequency_hz : array, optional
+        Where to search the sensitivity peak; default 1 Hz to the Nyquist
+        frequency of the controller, 4000 log-spaced points.
+
+    Returns
+    -------
+    list of dict
+        One row per axis: ``axis``, ``spectral_radius`` of the sampled-data closed
+        loop (< 1 is stable), ``stable``, ``min_damping_ratio`` of its oscillatory
+        poles (the loop's weakest mode; radial axes share one loop),
+        ``sensitivity_peak_db``, ``sensitivity_peak_hz``, ``iso_14839_zone``.
+    """
+    machine = plant.machine
+    if frequency_hz is None:
+        nyquist = 0.5 / machine.radial_controller.sample_time_s
+        frequency_hz = np.logspace(0, np.log10(0.999 * nyquist), 4000)
+    rows = []
+    radial_loop = plant.closed_loop_poles()
+    radial = transfer_functions(plant, frequency_hz)["input_sensitivity"]
+    for k, axis in enumerate(RADIAL_AXES):
+        rows.append(_row(axis, radial_loop, np.abs(radial[:, k, k]), frequency_hz))
+    if machine.axial_electromagnet is not None:
+        axial = axial_transfer_functions(plant, frequency_hz)["input_sensitivity"]
+        rows.append(_row(AXIAL_AXIS, plant.axial_closed_loop_poles(), np.abs(axial[:, 0, 0]), frequency_hz))
+    return rows
+
+
+def _row(axis, closed_loop, sensitivity, frequency_hz):
+    peak = int(np.argmax(sensitivity))
+    spectral_radius = np.max(np.abs(closed_loop.z_poles))
+    s = closed_loop.s_poles
+    oscillatory = s[np.abs(s.imag) > 1e-9 * np.maximum(np.abs(s), 1.0)]
+    return {
+        "axis": axis,
+        "spectral_radius": float(spectral_radius),
+        "stable": bool(spectral_radius < 1.0),
+        "min_damping_ratio": float(np.min(damping_ratio(oscillatory))) if oscillatory.size else 1.0,
+        "sensitivity_peak_db": float(20 * np.log10(sensitivity[peak])),
+        "sensitivity_peak_hz": float(frequency_hz[peak]),
+        "iso_14839_zone": iso_zone(sensitivity[peak]),
+    }

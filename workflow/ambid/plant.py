@@ -1,0 +1,333 @@
+"""Open-loop plant of a flexible rotor on AMBs: modal model, FRFs, poles and zeros.
+
+The rotor's free-free bending modes (one plane, mass-normalized) are the modal
+basis of thesis eq. 2.10-2.12.  Coordinates are ``q = [eta_x, eta_y, h]``: the
+modal coordinates of the xz and yz planes and, with a ``foundation_mode``
+effect, the housing displacements.  The radial plant (control currents of DX,
+DY, NX, NY [A] -> sensor positions [m]) is::
+
+    M q'' + (D + Omega G) q' + (K - B_a kx B_a^T) q = B_a ki i_c,     y = C_s q
+
+with ``B_a`` the actuator shape (force on the rotor, reaction on the housing)
+and ``C_s`` the sensor shape (rotor relative to housing).  Input- and
+output-side effects multiply the structural FRF: ``P = Out(jw) H(jw) In(jw)``.
+The axial axis Z is a rigid body on its own bearing.
+"""
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg
+
+from .effects import split_effects
+from .errors import ModelError
+from .machine import AXIAL_AXIS, AXIS_LOCATION, BEARINGS, RADIAL_AXES
+
+__all__ = ["Plant", "damping_ratio", "RIGID_MODES"]
+
+RIGID_MODES = 2  # translation and tilt of the free-free rotor in each plane
+
+
+def damping_ratio(poles):
+    """Damping ratio ``-Re(s) / |s|`` of continuous poles (-1 / +1 for real stable / unstable)."""
+    poles = np.asarray(poles)
+    magnitude = np.abs(poles)
+    return np.where(magnitude > 0, -poles.real / np.where(magnitude > 0, magnitude, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class SecondOrderModel:
+    """``M q'' + (D + Omega G) q' + K q = B u``, ``y = C q`` (stiffness includes the bearings)."""
+
+    mass: np.ndarray
+    damping: np.ndarray
+    gyroscopic: np.ndarray
+    stiffness: np.ndarray
+    input_matrix: np.ndarray
+    output_matrix: np.ndarray
+    speed_rad_s: float
+
+    def frequency_response(self, frequency_hz):
+        """Structural FRF, array (n_freq, n_out, n_in), by one batched linear solve."""
+        w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)[:, None, None]
+        dynamic = self.stiffness - w**2 * self.mass + 1j * w * (self.damping + self.speed_rad_s * self.gyroscopic)
+        return self.output_matrix @ np.linalg.solve(dynamic, self.input_matrix.astype(complex))
+
+    def state_space(self):
+        """First-order form (A, B, C) with state ``[q, q']``."""
+        n = self.mass.shape[0]
+        inverse_mass = np.linalg.inv(self.mass)
+        a = np.block(
+            [
+                [np.zeros((n, n)), np.eye(n)],
+                [-inverse_mass @ self.stiffness, -inverse_mass @ (self.damping + self.speed_rad_s * self.gyroscopic)],
+            ]
+        )
+        b = np.vstack([np.zeros_like(self.input_matrix), inverse_mass @ self.input_matrix])
+        c = np.hstack([self.output_matrix, np.zeros_like(self.output_matrix)])
+        return a, b, c
+
+
+class Plant:
+    """The open-loop plant of a `Machine`, with all its effects applied.
+
+    Parameters
+    ----------
+    machine : ambid.machine.Machine
+
+    Notes
+    -----
+    Structure effects are applied first (they change the machine), then the
+    modal model is built with ``machine.retained_modes`` planar modes.
+    """
+
+    def __init__(self, machine):
+        structure, self.input_effects, self.output_effects = split_effects(machine.effects)
+        for effect in structure:
+            machine = effect.apply(machine)
+        self.machine = machine
+        self.rotor = machine.rotor
+        self.modes = self.rotor.planar_modes(machine.retained_modes)
+        self.radial = self._radial_model()
+
+    # ------------------------------------------------------------------ model
+    def _modal_damping(self):
+        omega = self.modes.angular_frequency_rad_s
+        eta = self.rotor.modal_loss_factors(self.modes)
+        damping = eta * omega
+        added = np.asarray(self.machine.added_modal_damping, dtype=float)
+        if added.size:
+            flexible = np.arange(RIGID_MODES, len(omega))
+            ratios = np.broadcast_to(added, flexible.shape) if added.size == 1 else added[: flexible.size]
+            damping[flexible[: ratios.size]] += 2 * ratios * omega[flexible[: ratios.size]]
+        return np.diag(damping)
+
+    def _radial_model(self):
+        rotor, modes, machine = self.rotor, self.modes, self.machine
+        n_modes = modes.shapes.shape[1]
+        polar = modes.shapes.T @ rotor.planar_matrices()["polar"] @ modes.shapes
+        modal_damping = self._modal_damping()
+        housings = machine.foundation is not None
+        n = 2 * n_modes + (4 if housings else 0)
+        mass = np.eye(n)
+        stiffness = np.zeros((n, n))
+        damping = np.zeros((n, n))
+        gyroscopic = np.zeros((n, n))
+        xs, ys = slice(0, n_modes), slice(n_modes, 2 * n_modes)
+        stiffness[xs, xs] = stiffness[ys, ys] = np.diag(modes.angular_frequency_rad_s**2)
+        damping[xs, xs] = damping[ys, ys] = modal_damping
+        gyroscopic[xs, ys], gyroscopic[ys, xs] = polar, -polar
+        if housings:
+            f = machine.foundation
+            w = 2 * np.pi * f.frequency_hz
+            h = slice(2 * n_modes, n)
+            mass[h, h] = f.mass_kg * np.eye(4)
+            stiffness[h, h] = f.mass_kg * w**2 * np.eye(4)
+            damping[h, h] = 2 * f.damping_ratio * f.mass_kg * w * np.eye(4)
+
+        actuator = np.zeros((n, 4))  # relative-displacement (and force) shape of each axis
+        sensor = np.zeros((4, n))
+        current_stiffness = np.zeros(4)
+        position_stiffness = np.zeros(4)
+        for k, axis in enumerate(RADIAL_AXES):
+            bearing_name, plane = AXIS_LOCATION[axis]
+            bearing = machine.bearing(bearing_name)
+            part = xs if plane == "x" else ys
+            actuator[part, k] = rotor.planar_displacement_row(bearing.actuator_position_m) @ modes.shapes
+            sensor[k, part] = rotor.planar_displacement_row(bearing.sensor_position_m) @ modes.shapes
+            if housings and bearing_name in machine.foundation.bearings:
+                hk = 2 * n_modes + 2 * BEARINGS.index(bearing_name) + (0 if plane == "x" else 1)
+                actuator[hk, k] = -1.0
+                sensor[k, hk] = -1.0
+            current_stiffness[k], position_stiffness[k] = bearing.electromagnet.linearize()
+        self.current_stiffness = current_stiffness
+        self.position_stiffness = position_stiffness
+        return SecondOrderModel(
+            mass=mass,
+            damping=damping,
+            gyroscopic=gyroscopic,
+            stiffness=stiffness - actuator @ np.diag(position_stiffness) @ actuator.T,
+            input_matrix=actuator * current_stiffness,
+            output_matrix=sensor,
+            speed_rad_s=machine.speed_rad_s,
+        )
+
+    # ------------------------------------------------------------ responses
+    def _effect_matrices(self, effects, frequency_hz, axes):
+        out = None
+        for effect in effects:
+            r = effect.response(frequency_hz, axes)
+            out = r if out is None else r @ out
+        return out
+
+    def radial_frequency_response(self, frequency_hz):
+        """Radial plant P(jw), array (n_freq, 4, 4) [m/A]; rows outputs, columns inputs (DX, DY, NX, NY)."""
+        frequency_hz = np.asarray(frequency_hz, dtype=float)
+        response = self.radial.frequency_response(frequency_hz)
+        axes = list(RADIAL_AXES)
+        inp = self._effect_matrices(self.input_effects, frequency_hz, axes)
+        out = self._effect_matrices(self.output_effects, frequency_hz, axes)
+        if inp is not None:
+            response = response @ inp
+        if out is not None:
+            response = out @ response
+        return response
+
+    @cached_property
+    def axial_stiffness(self):
+        """(ki, kx) of the axial bearing."""
+        if self.machine.axial_electromagnet is None:
+            raise ModelError(f"machine {self.machine.name!r} has no axial bearing")
+        return self.machine.axial_electromagnet.linearize()
+
+    def axial_frequency_response(self, frequency_hz):
+        """Axial plant P_z(jw) = ki / (-w^2 m - kx) with the effects on Z [m/A]."""
+        frequency_hz = np.asarray(frequency_hz, dtype=float)
+        ki, kx = self.axial_stiffness
+        w = 2 * np.pi * frequency_hz
+        response = (ki / (-(w**2) * self.rotor.mass_kg - kx)).astype(complex)
+        for effect in self.input_effects + self.output_effects:
+            response = response * effect.response(frequency_hz, [AXIAL_AXIS])[:, 0, 0]
+        return response
+
+    def axial_state_space(self):
+        """(A, B, C) of the axial rigid body, state [z, z']."""
+        ki, kx = self.axial_stiffness
+        m = self.rotor.mass_kg
+        return np.array([[0.0, 1.0], [kx / m, 0.0]]), np.array([[0.0], [ki / m]]), np.array([[1.0, 0.0]])
+
+    # ------------------------------------------------------- poles and zeros
+    def poles(self):
+        """Open-loop poles of the radial structural plant [rad/s], and their eigenvectors."""
+        a, _, _ = self.radial.state_space()
+        return scipy.linalg.eig(a)
+
+    def zeros(self, output_axis, input_axis):
+        """Transmission zeros [rad/s] of one SISO channel of the structural plant.
+
+        The channel is brought to its minimal modal form ``sum_k r_k / (s - p_k)``:
+        residues of repeated poles are merged and poles the channel cannot see
+        (uncontrollable or unobservable: the other plane at standstill) are
+        dropped.  The zeros are the finite generalized eigenvalues of the
+        Rosenbrock pencil of that realization, valid collocated or not.
+        Rational input/output effects (low-passes) add poles but no finite
+        zeros; a delay or an eddy-current lag has none either.
+        """
+        poles, residues = self.channel_residues(output_axis, input_axis)
+        n = poles.size
+        if n == 0:
+            return np.array([], dtype=complex)
+        pencil = np.zeros((n + 1, n + 1), dtype=complex)
+        pencil[:n, :n] = np.diag(poles)
+        pencil[:n, n] = 1.0
+        pencil[n, :n] = residues / np.max(np.abs(residues))
+        identity = np.zeros((n + 1, n + 1))
+        identity[:n, :n] = np.eye(n)
+        values = scipy.linalg.eigvals(pencil, identity)
+        values = values[np.isfinite(values)]
+        return values[np.argsort(np.abs(values))]
+
+    def channel_residues(self, output_axis, input_axis, relative_tolerance=1e-8):
+        """Minimal modal form of one channel: poles p_k and residues r_k of P_ij(s).
+
+        Poles equal to within 1e-6 (relative) are merged by summing their
+        residues, which undoes eig's arbitrary mixing of the x and y planes'
+        identical modes; modes whose merged weight ``|r_k| / |p_k|`` is below
+        ``relative_tolerance`` times the largest unmerged one are dropped as
+        uncontrollable or unobservable.  A channel with no coupling at all
+        returns empty arrays.
+        """
+        a, b, c = self.radial.state_space()
+        j, i = RADIAL_AXES.index(input_axis), RADIAL_AXES.index(output_axis)
+        poles, vectors = scipy.linalg.eig(a)
+        observability = c[i] @ vectors
+        controllability = np.linalg.solve(vectors, b[:, j])
+        residues = observability * controllability
+        magnitude = np.maximum(np.abs(poles), 1.0)
+        reference = np.max(np.abs(observability) * np.abs(controllability) / magnitude)
+        cluster = np.full(poles.size, -1)
+        for k in range(poles.size):
+            if cluster[k] < 0:
+                cluster[np.abs(poles - poles[k]) <= 1e-6 * magnitude[k]] = k
+        heads = np.unique(cluster)
+        merged = np.array([residues[cluster == h].sum() for h in heads])
+        poles = poles[heads]
+        keep = np.abs(merged) / np.maximum(np.abs(poles), 1.0) > relative_tolerance * reference
+        return poles[keep], merged[keep]
+
+    def mode_kind(self, eigenvector):
+        """Classify a structural eigenvector: rigid / flexible / foundation, and its whirl."""
+        n_modes = self.modes.shapes.shape[1]
+        q = eigenvector[: self.radial.mass.shape[0]]
+        ex, ey = q[:n_modes], q[n_modes : 2 * n_modes]
+        omega = self.modes.angular_frequency_rad_s
+        weight = np.maximum(omega, omega[RIGID_MODES] if n_modes > RIGID_MODES else 1.0)
+        energy = (np.abs(ex) ** 2 + np.abs(ey) ** 2) * weight**2
+        housing = np.sum(np.abs(q[2 * n_modes :]) ** 2) * (2 * np.pi * self.machine.foundation.frequency_hz) ** 2 if self.machine.foundation else 0.0
+        total = energy.sum() + housing
+        if housing > 0.5 * total:
+            kind = "foundation"
+        else:
+            kind = "rigid" if energy[:RIGID_MODES].sum() > 0.5 * energy.sum() else "flexible"
+        # orbit direction of the rotor translations, summed over the nodes
+        u = self.modes.shapes[0::2]
+        x, y = u @ ex, u @ ey
+        spin = -np.sum(np.imag(np.conj(x) * y)) / max(np.sum(np.abs(x) ** 2 + np.abs(y) ** 2), 1e-300)
+        whirl = "forward" if spin > 0.05 else "backward" if spin < -0.05 else "planar"
+        return kind, whirl
+
+    # ---------------------------------------------------------- closed loop
+    def closed_loop_poles(self):
+        """Poles of the sampled-data closed loop (ZOH plant + digital controllers).
+
+        The structural plant (rational effects excluded: a delay or eddy lag is
+        not part of this check) is discretized exactly with a zero-order hold at
+        the controller cycle and closed with the four radial controllers.
+
+        Returns
+        -------
+        ClosedLoop
+            ``s_poles`` = log(z) / T [rad/s], ``z_poles`` (stable when all |z| < 1),
+            ``vectors`` (right eigenvectors, plant states first) and
+            ``plant_participation``: the share of each mode carried by the
+            plant states, from the participation factors |w_ik v_ik| (invariant
+            to how the controller states are scaled).
+        """
+        a, b, c = self.radial.state_space()
+        controller = self.machine.radial_controller
+        return _sampled_closed_loop(a, b, c, [controller] * len(RADIAL_AXES))
+
+    def axial_closed_loop_poles(self):
+        a, b, c = self.axial_state_space()
+        return _sampled_closed_loop(a, b, c, [self.machine.axial_controller])
+
+
+class ClosedLoop(NamedTuple):
+    """Eigen-analysis of a sampled-data closed loop (see `Plant.closed_loop_poles`)."""
+
+    s_poles: np.ndarray
+    z_poles: np.ndarray
+    vectors: np.ndarray
+    plant_participation: np.ndarray
+
+
+def _sampled_closed_loop(a, b, c, controllers):
+    sample_time = controllers[0].sample_time_s
+    n, m = b.shape
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n], augmented[:n, n:] = a, b
+    transition = scipy.linalg.expm(augmented * sample_time)
+    ad, bd = transition[:n, :n], transition[:n, n:]
+    blocks = [ctrl.discrete_state_space() for ctrl in controllers]
+    ac = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
+    bc = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
+    cc = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
+    dc = scipy.linalg.block_diag(*[blk[3] for blk in blocks])
+    # controller input e = -y, output u = cc xc + dc e
+    closed = np.block([[ad - bd @ dc @ c, bd @ cc], [-bc @ c, ac]])
+    z, left, right = scipy.linalg.eig(closed, left=True)
+    participation = np.abs(left.conj() * right)
+    share = participation[:n].sum(axis=0) / participation.sum(axis=0)
+    return ClosedLoop(np.log(z.astype(complex)) / sample_time, z, right, share)

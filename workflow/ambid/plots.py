@@ -1,0 +1,104 @@
+"""Figures: Bode plots of plant FRFs and rotor mode shapes.
+
+Figures are written with blank metadata (no creation date, no software
+version) so the same inputs give byte-identical files.
+"""
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .io import atomic_path  # noqa: E402
+
+__all__ = ["bode_matrix", "bode_siso", "mode_shapes", "save_figure"]
+
+
+def save_figure(figure, path, dpi=120):
+    """Save a figure atomically with reproducible (blank) metadata and close it."""
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, dpi=dpi, format="png", metadata={"Software": None})
+    plt.close(figure)
+
+
+def _bode_axes(magnitude_axis, phase_axis, frequency_hz, values, label=None, **style):
+    magnitude_axis.semilogy(frequency_hz, np.abs(values), label=label, **style)
+    phase_axis.plot(frequency_hz, np.degrees(np.angle(values)), **style)
+
+
+def bode_matrix(frequency_hz, response, outputs, inputs, title, unit="m/A"):
+    """Bode plots of every channel of a MIMO FRF, one column per input.
+
+    Parameters
+    ----------
+    frequency_hz : array (n_f,)
+    response : complex array (n_f, n_out, n_in)
+    outputs, inputs : sequences of axis names
+    """
+    n_out, n_in = response.shape[1:]
+    figure, axes = plt.subplots(2, n_in, figsize=(3.2 * n_in + 1, 6), sharex=True, squeeze=False)
+    for j, input_name in enumerate(inputs):
+        for i, output_name in enumerate(outputs):
+            style = dict(lw=1.6 if i == j else 0.8, ls="-" if i == j else "--")
+            _bode_axes(axes[0, j], axes[1, j], frequency_hz, response[:, i, j], label=f"{output_name}", **style)
+        axes[0, j].set_title(f"input {input_name}")
+        axes[1, j].set_xlabel("frequency [Hz]")
+        axes[0, j].grid(True, which="both", alpha=0.3)
+        axes[1, j].grid(True, alpha=0.3)
+        axes[1, j].set_ylim(-190, 190)
+        axes[1, j].set_yticks([-180, -90, 0, 90, 180])
+    axes[0, 0].set_ylabel(f"|P| [{unit}]")
+    axes[1, 0].set_ylabel("phase [deg]")
+    axes[0, -1].legend(title="output", fontsize=8)
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def bode_siso(frequency_hz, values, title, unit="m/A", markers=False):
+    """Bode plot of one channel; ``markers`` marks every measurement point (thesis Fig. 6.3)."""
+    figure, (magnitude_axis, phase_axis) = plt.subplots(2, 1, figsize=(6, 5), sharex=True)
+    style = dict(marker=".", ms=3) if markers else {}
+    _bode_axes(magnitude_axis, phase_axis, frequency_hz, values, **style)
+    magnitude_axis.set_ylabel(f"|G| [{unit}]")
+    phase_axis.set_ylabel("phase [deg]")
+    phase_axis.set_xlabel("frequency [Hz]")
+    for axis in (magnitude_axis, phase_axis):
+        axis.grid(True, which="both", alpha=0.3)
+    magnitude_axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def mode_shapes(node_positions_m, shapes, frequency_hz, bearing_positions_m, sensor_positions_m, title):
+    """Planar bending mode shapes (displacement along the rotor), normalized to unit peak.
+
+    Parameters
+    ----------
+    node_positions_m : array (n_nodes,)
+    shapes : array (2 n_nodes, n_modes)
+        Planar mode shapes ``[u, theta]`` per node.
+    frequency_hz : array (n_modes,)
+    bearing_positions_m, sensor_positions_m : sequences
+        Marked on the plot (actuators as solid, sensors as dotted lines).
+    """
+    figure, axis = plt.subplots(figsize=(8, 4))
+    displacement = shapes[0::2]
+    for k in range(shapes.shape[1]):
+        u = displacement[:, k]
+        u = u / np.max(np.abs(u))
+        u = u * np.sign(u[np.argmax(np.abs(u))])
+        axis.plot(node_positions_m, u, marker="o", ms=2.5, label=f"{frequency_hz[k]:.1f} Hz")
+    for z in bearing_positions_m:
+        axis.axvline(z, color="k", lw=1.2)
+    for z in sensor_positions_m:
+        axis.axvline(z, color="k", lw=1.0, ls=":")
+    axis.axhline(0, color="grey", lw=0.5)
+    axis.set_xlabel("axial position z [m] (solid: actuators, dotted: sensors)")
+    axis.set_ylabel("normalized displacement")
+    axis.set_title(title)
+    axis.legend(fontsize=8, ncol=2)
+    axis.grid(True, alpha=0.3)
+    figure.tight_layout()
+    return figure
