@@ -65,6 +65,7 @@ except ModuleNotFoundError:  # not installed: use the source tree
 
 from ambid.machine import machine_from_config  # noqa: E402
 from ambid.plant import Plant  # noqa: E402
+from ambid.ross_export import to_ross_rotor  # noqa: E402
 from ambid.rotor import Rotor  # noqa: E402
 
 CONFIG = REPO / "config" / "machines" / "demo20.yaml"
@@ -146,42 +147,11 @@ def fresh_rotor(rotor):
     return Rotor(elements=rotor.elements, disks=rotor.disks, sleeves=rotor.sleeves)
 
 
-def ross_rotor(rs, machine, bearing_stiffness_n_m):
+def ross_rotor(machine, bearing_stiffness_n_m):
     """The machine's rotor in ROSS with linear bearings at the nodes nearest to the actuators."""
-    rotor = machine.rotor
-    if rotor.sleeves:
-        raise ValueError("ROSS has no sleeves")
-    materials = {}
-    elements = []
-    for element in rotor.elements:
-        m = element.material
-        if m.name not in materials:
-            materials[m.name] = rs.Material(
-                name=f"ambid_{m.name}", rho=m.density_kg_m3, E=m.youngs_modulus_pa, G_s=m.shear_modulus
-            )
-        elements.append(
-            rs.ShaftElement(
-                L=element.length_m,
-                idl=element.inner_diameter_m,
-                odl=element.outer_diameter_m,
-                material=materials[m.name],
-                shear_effects=True,
-                rotary_inertia=True,
-                gyroscopic=True,
-            )
-        )
-    disks = [
-        rs.DiskElement(n=d.node, m=d.mass_kg, Id=d.transverse_inertia_kg_m2, Ip=d.polar_inertia_kg_m2)
-        for d in rotor.disks
-    ]
-    nodes_z_m = rotor.node_positions_m
-    bearings = [
-        rs.BearingElement(
-            n=int(np.argmin(np.abs(nodes_z_m - b.actuator_position_m))), kxx=bearing_stiffness_n_m, cxx=0.0
-        )
-        for b in machine.radial_bearings
-    ]
-    return rs.Rotor(elements, disks, bearings)
+    nodes_z_m = machine.rotor.node_positions_m
+    nodes = [int(np.argmin(np.abs(nodes_z_m - b.actuator_position_m))) for b in machine.radial_bearings]
+    return to_ross_rotor(machine.rotor, [(node, bearing_stiffness_n_m) for node in nodes])
 
 
 # --------------------------------------------------------------- benchmark
@@ -235,14 +205,14 @@ def run(profile=False):
         )
         num_modes = 2 * machine.retained_modes
         with silenced_output():  # first calls compile ROSS' numba code and may warn
-            prebuilt = ross_rotor(rs, machine, stiffness_n_m)
+            prebuilt = ross_rotor(machine, stiffness_n_m)
 
             def ross_modal():
                 prebuilt.run_modal.cache_clear()
                 prebuilt.run_modal(speed=0.0, num_modes=num_modes, sparse=False)
 
             def ross_build_modal():
-                ross_rotor(rs, machine, stiffness_n_m).run_modal(speed=0.0, num_modes=num_modes, sparse=False)
+                ross_rotor(machine, stiffness_n_m).run_modal(speed=0.0, num_modes=num_modes, sparse=False)
 
             speed_range_rad_s = 2 * np.pi * FREQUENCY_HZ
 

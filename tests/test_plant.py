@@ -7,8 +7,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from ambid.effects import effect_from_config
-from ambid.loop import transfer_functions
-from ambid.machine import AXIS_LOCATION, RADIAL_AXES
+from ambid.errors import ConfigError
+from ambid.loop import stability_summary, transfer_functions
+from ambid.machine import AXIS_LOCATION, RADIAL_AXES, machine_from_config
 from ambid.plant import Plant, damping_ratio
 from ambid.rotor import planar_to_full
 
@@ -145,13 +146,27 @@ class TestClosedLoop:
 
     @pytest.mark.parametrize("name", ["hs_plant", "demo_plant"])
     def test_default_machines_stable_with_margins(self, name, request):
-        from ambid.loop import stability_summary
-
         rows = stability_summary(request.getfixturevalue(name))
         assert all(r["stable"] for r in rows)
         assert all(r["iso_14839_zone"] in ("A", "B") for r in rows)
 
     def test_unstable_controller_is_detected(self, hs_machine):
-        weak = replace(hs_machine.radial_controller, proportional_gain_a_per_m=2e3)  # kp ki < kx
-        rows = __import__("ambid.loop", fromlist=["x"]).stability_summary(Plant(replace(hs_machine, radial_controller=weak)))
-        assert not any(r["stable"] for r in rows[:4])
+        weak = replace(hs_machine.radial_controllers[2], proportional_gain_a_per_m=2e3)  # kp ki < kx on NX only
+        controllers = hs_machine.radial_controllers[:2] + (weak,) + hs_machine.radial_controllers[3:]
+        rows = stability_summary(Plant(replace(hs_machine, radial_controllers=controllers)))
+        assert not any(r["stable"] for r in rows[:4])  # one coupled radial loop
+
+    def test_per_axis_controller_override(self, hs_config):
+        config = {**hs_config, "controller": {**hs_config["controller"], "per_axis": {"NX": {"derivative_gain_a_s_per_m": 20.0}}}}
+        machine = machine_from_config(config)
+        gains = [c.derivative_gain_a_s_per_m for c in machine.radial_controllers]
+        assert gains == [30.0, 30.0, 20.0, 30.0]
+        rows = {r["axis"]: r for r in stability_summary(Plant(machine))}
+        nominal = {r["axis"]: r for r in stability_summary(Plant(machine_from_config(hs_config)))}
+        assert rows["NX"]["sensitivity_peak_db"] != pytest.approx(nominal["NX"]["sensitivity_peak_db"], abs=0.05)
+        assert rows["NY"]["sensitivity_peak_db"] == pytest.approx(nominal["NY"]["sensitivity_peak_db"], abs=0.05)
+
+    def test_per_axis_override_names_bad_axis(self, hs_config):
+        config = {**hs_config, "controller": {**hs_config["controller"], "per_axis": {"QX": {}}}}
+        with pytest.raises(ConfigError, match="controller.per_axis.QX"):
+            machine_from_config(config)

@@ -53,6 +53,7 @@ except ModuleNotFoundError:  # not installed: use the source tree
     sys.path.insert(0, str(REPO / "workflow"))
 
 from ambid.machine import machine_from_config  # noqa: E402
+from ambid.ross_export import to_ross_rotor  # noqa: E402
 from ambid.rotor import Disk, Material, Rotor, ShaftElement  # noqa: E402
 
 RELATIVE_TOLERANCE = 0.005  # 0.5 %
@@ -100,36 +101,12 @@ def demo20_rotor():
 
 
 def ross_rotor(rotor):
-    """The same free-free rotor in ROSS: Timoshenko elements (Cowper kappa), rigid disks, no bearings."""
-    if rotor.sleeves:
-        raise ValueError("ROSS has no sleeves; the cross-check covers rotors without sleeves")
-    materials = {}
-    elements = []
-    for element in rotor.elements:
-        m = element.material
-        if m.name not in materials:
-            materials[m.name] = rs.Material(
-                name=f"ambid_{m.name}", rho=m.density_kg_m3, E=m.youngs_modulus_pa, G_s=m.shear_modulus
-            )
-            # both codes use E / (2 G) - 1 in the shear coefficient
-            assert materials[m.name].Poisson == pytest.approx(m.poisson_ratio, rel=1e-12)
-        elements.append(
-            rs.ShaftElement(
-                L=element.length_m,
-                idl=element.inner_diameter_m,
-                odl=element.outer_diameter_m,
-                material=materials[m.name],
-                shear_effects=True,
-                rotary_inertia=True,
-                gyroscopic=True,
-                shear_method_calc="cowper",
-            )
-        )
-    disks = [
-        rs.DiskElement(n=d.node, m=d.mass_kg, Id=d.transverse_inertia_kg_m2, Ip=d.polar_inertia_kg_m2)
-        for d in rotor.disks
-    ]
-    return rs.Rotor(elements, disks)
+    """The same free-free rotor in ROSS (no bearings), checking the material conversion."""
+    converted = to_ross_rotor(rotor)
+    for element, original in zip(converted.shaft_elements, rotor.elements):
+        # both codes use E / (2 G) - 1 in the shear coefficient
+        assert element.material.Poisson == pytest.approx(original.material.poisson_ratio, rel=1e-12)
+    return converted
 
 
 # ------------------------------------------------------------ frequencies

@@ -34,10 +34,10 @@ def iso_zone(sensitivity_peak):
 
 
 def _functions(plant_response, controller_response):
-    """Table 4.1 from P (n_f, n, n) and C = -C_pid (n_f,) on all axes."""
+    """Table 4.1 from P (n_f, n, n) and the decentralized C = -C_pid, array (n_f, n)."""
     n = plant_response.shape[-1]
     identity = np.eye(n)
-    controller = controller_response[:, None, None] * identity
+    controller = controller_response[:, :, None] * identity
     open_loop = plant_response @ controller
     input_sensitivity = np.linalg.inv(identity - open_loop)
     return {
@@ -65,14 +65,14 @@ def transfer_functions(plant, frequency_hz):
         ``dynamic_compliance``, ``dynamic_stiffness``, ``output_sensitivity``.
     """
     plant_response = plant.radial_frequency_response(frequency_hz)
-    controller = -plant.machine.radial_controller.frequency_response(frequency_hz)
+    controller = -np.stack([c.frequency_response(frequency_hz) for c in plant.machine.radial_controllers], axis=1)
     return {"plant": plant_response, **_functions(plant_response, controller)}
 
 
 def axial_transfer_functions(plant, frequency_hz):
     """Table 4.1 for the axial axis; arrays (n_f, 1, 1)."""
     plant_response = plant.axial_frequency_response(frequency_hz)[:, None, None]
-    controller = -plant.machine.axial_controller.frequency_response(frequency_hz)
+    controller = -plant.machine.axial_controller.frequency_response(frequency_hz)[:, None]
     return {"plant": plant_response, **_functions(plant_response, controller)}
 
 
@@ -96,7 +96,7 @@ def stability_summary(plant, frequency_hz=None):
     """
     machine = plant.machine
     if frequency_hz is None:
-        nyquist = 0.5 / machine.radial_controller.sample_time_s
+        nyquist = 0.5 / machine.sample_time_s
         frequency_hz = np.logspace(0, np.log10(0.999 * nyquist), 4000)
     rows = []
     radial_loop = plant.closed_loop_poles()

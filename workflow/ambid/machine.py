@@ -94,7 +94,7 @@ class Machine:
     rotor: Rotor
     radial_bearings: tuple
     axial_electromagnet: ActuatorAxis | None
-    radial_controller: Controller
+    radial_controllers: tuple
     axial_controller: Controller | None
     retained_modes: int
     radial_grid: FrequencyGrid
@@ -108,6 +108,11 @@ class Machine:
 
     def bearing(self, name):
         return next(b for b in self.radial_bearings if b.name == name)
+
+    @property
+    def sample_time_s(self):
+        """Controller cycle [s] (the same for every axis)."""
+        return self.radial_controllers[0].sample_time_s
 
     def with_effects(self, effects):
         """A copy with another list of effects (the nominal structure is unchanged)."""
@@ -289,7 +294,19 @@ def machine_from_config(config, name=None, source=None):
             axial_magnet = _electromagnet(bearings_cfg["axial"]["electromagnet"], "bearings.axial.electromagnet")
         control_cfg = _require(config, "controller", "")
         sample_time = _positive(control_cfg.get("sample_time_s", 50e-6), "controller.sample_time_s")
-        radial_controller = _controller(_require(control_cfg, "radial", "controller"), sample_time, "controller.radial")
+        radial_settings = _require(control_cfg, "radial", "controller")
+        per_axis = control_cfg.get("per_axis") or {}
+        unknown_axes = set(per_axis) - set(RADIAL_AXES)
+        if unknown_axes:
+            raise ConfigError(f"controller.per_axis.{sorted(unknown_axes)[0]}", f"not a radial axis {list(RADIAL_AXES)}")
+        radial_controllers = tuple(
+            _controller(
+                {**radial_settings, **per_axis.get(axis, {})},
+                sample_time,
+                f"controller.per_axis.{axis}" if axis in per_axis else "controller.radial",
+            )
+            for axis in RADIAL_AXES
+        )
         axial_controller = None
         if axial_magnet is not None:
             axial_controller = _controller(_require(control_cfg, "axial", "controller"), sample_time, "controller.axial")
@@ -303,7 +320,7 @@ def machine_from_config(config, name=None, source=None):
             rotor=rotor,
             radial_bearings=tuple(radial),
             axial_electromagnet=axial_magnet,
-            radial_controller=radial_controller,
+            radial_controllers=radial_controllers,
             axial_controller=axial_controller,
             retained_modes=retained,
             radial_grid=_grid(_require(grids, "radial", "frequency_grid"), "frequency_grid.radial"),

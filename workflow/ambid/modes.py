@@ -43,7 +43,7 @@ def mode_table(plant, max_frequency_hz=None):
     """
     machine = plant.machine
     if max_frequency_hz is None:
-        max_frequency_hz = 0.5 / machine.radial_controller.sample_time_s
+        max_frequency_hz = 0.5 / machine.sample_time_s
     poles, vectors = plant.poles()
     rows = _rows("open_loop", plant, poles, vectors, np.ones(poles.size), max_frequency_hz)
     closed = plant.closed_loop_poles()

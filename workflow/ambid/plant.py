@@ -284,7 +284,7 @@ class Plant:
 
         The structural plant (rational effects excluded: a delay or eddy lag is
         not part of this check) is discretized exactly with a zero-order hold at
-        the controller cycle and closed with the four radial controllers.
+        the controller cycle and closed with the four radial controllers (one per axis).
 
         Returns
         -------
@@ -296,8 +296,7 @@ class Plant:
             to how the controller states are scaled).
         """
         a, b, c = self.radial.state_space()
-        controller = self.machine.radial_controller
-        return _sampled_closed_loop(a, b, c, [controller] * len(RADIAL_AXES))
+        return _sampled_closed_loop(a, b, c, list(self.machine.radial_controllers))
 
     def axial_closed_loop_poles(self):
         a, b, c = self.axial_state_space()
