@@ -65,6 +65,7 @@ class TestRegistry:
             ({"name": "element_stiffness", "parameters": {"tag": "design", "scale": [1, 2]}}, r"effects\[0\].parameters.scale"),
             ({"name": "noncollocation", "parameters": {"de_offset_m": -0.5}}, r"effects\[0\].parameters.de_offset_m"),
             ({"name": "cross_coupling", "parameters": {"coefficient": 0.1, "side": "both"}}, r"effects\[0\].parameters.side"),
+            ({"name": "modal_damping", "parameters": {"damping_ratio": [0.01] * 11}}, r"effects\[0\].parameters.damping_ratio"),
         ],
     )
     def test_bad_parameters_name_the_key(self, demo_machine, spec, key):
@@ -129,6 +130,10 @@ class TestStructuralFingerprints:
         uniform = plant_with(demo_machine, ("element_stiffness", {"tag": "design", "scale": 0.7}))
         listed = plant_with(demo_machine, ("element_stiffness", {"tag": "design", "scale": [0.7, 0.7, 0.7, 0.7]}))
         assert_allclose(first_flexible_pole(uniform), first_flexible_pole(listed))
+
+    def test_modal_damping_per_mode(self, demo_machine, demo_plant):
+        damped = plant_with(demo_machine, ("modal_damping", {"damping_ratio": [0.02, 0.0]}))
+        assert_allclose(damping_ratio(first_flexible_pole(damped)) - damping_ratio(first_flexible_pole(demo_plant)), 0.02, rtol=0.05)
 
     def test_modal_damping_adds_damping_not_frequency(self, demo_machine, demo_plant):
         damped = plant_with(demo_machine, ("modal_damping", {"damping_ratio": 0.01}))

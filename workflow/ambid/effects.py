@@ -326,6 +326,14 @@ class ModalDamping(Effect):
     location = "structure"
     parameters = {"damping_ratio": Parameter("-", "added damping ratio zeta", lower=0.0, upper=0.5, kind="floats")}
 
+    def check(self, machine):
+        flexible = machine.retained_modes - 2  # the two rigid-body modes of each plane carry none
+        if isinstance(self.damping_ratio, tuple) and len(self.damping_ratio) > flexible:
+            raise ConfigError(
+                "parameters.damping_ratio",
+                f"{len(self.damping_ratio)} values for {flexible} retained flexible modes (rotor.retained_modes)",
+            )
+
     def apply(self, machine):
         ratios = np.atleast_1d(np.asarray(self.damping_ratio, dtype=float))
         return replace(machine, added_modal_damping=tuple(ratios.tolist()))

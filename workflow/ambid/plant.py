@@ -99,9 +99,8 @@ class Plant:
         damping = eta * omega
         added = np.asarray(self.machine.added_modal_damping, dtype=float)
         if added.size:
-            flexible = np.arange(RIGID_MODES, len(omega))
-            ratios = np.broadcast_to(added, flexible.shape) if added.size == 1 else added[: flexible.size]
-            damping[flexible[: ratios.size]] += 2 * ratios * omega[flexible[: ratios.size]]
+            flexible = np.arange(RIGID_MODES, RIGID_MODES + (len(omega) - RIGID_MODES if added.size == 1 else added.size))
+            damping[flexible] += 2 * added * omega[flexible]
         return np.diag(damping)
 
     def _radial_model(self):
@@ -250,7 +249,7 @@ class Plant:
         cluster = np.full(poles.size, -1)
         for k in range(poles.size):
             if cluster[k] < 0:
-                cluster[np.abs(poles - poles[k]) <= 1e-6 * magnitude[k]] = k
+                cluster[(cluster < 0) & (np.abs(poles - poles[k]) <= 1e-6 * magnitude[k])] = k
         heads = np.unique(cluster)
         merged = np.array([residues[cluster == h].sum() for h in heads])
         poles = poles[heads]
