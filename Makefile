@@ -40,8 +40,9 @@ $(ROSS_STAMP): requirements-ross.txt pyproject.toml
 crosscheck: $(ROSS_STAMP)
 	$(ROSS_VENV)/bin/python -m pytest tests/crosscheck
 
-bench: $(ROSS_STAMP)
+bench: $(STAMP) $(ROSS_STAMP)
 	$(ROSS_VENV)/bin/python benchmarks/bench_rotor.py
+	$(BIN)/python benchmarks/bench_identification.py
 
 clean:
 	rm -rf results logs .snakemake

@@ -13,6 +13,7 @@ report: "workflow/report/workflow.rst"
 
 include: "rules/common.smk"
 include: "rules/model.smk"
+include: "rules/acquire.smk"
 
 
 rule all:

@@ -7,7 +7,9 @@ from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
 from ambid.errors import ConfigError
+from ambid.excitation import settings_from_config
 from ambid.machine import machine_from_config
+from ambid.rig import rig_from_config
 
 validate(config, schema="../workflow/schemas/config.schema.yaml")
 
@@ -35,9 +37,38 @@ def load_machine_config(name):
 MACHINE_CONFIGS = {name: load_machine_config(name) for name in config["machines"]}
 
 
+def load_rig_config(name):
+    """Read and validate a machine's virtual rig truth (passed only to acquisition rules)."""
+    path = config["machines"][name].get("rig")
+    if path is None:
+        raise ConfigError(f"machines.{name}.rig", "runs with source 'rig' need a rig file")
+    try:
+        with open(path) as handle:
+            rig_config = yaml.safe_load(handle)
+        validate(rig_config, schema="../workflow/schemas/rig.schema.yaml")
+    except (OSError, yaml.YAMLError, WorkflowError) as error:
+        raise ConfigError(f"machines.{name}.rig", f"{path}: {error}") from None
+    if rig_config["machine"] != name:
+        raise ConfigError(f"machines.{name}.rig", f"{path} is the rig of machine {rig_config['machine']!r}")
+    rig_from_config(rig_config, MACHINE_CONFIGS[name], source=path)  # cross-reference checks
+    return rig_config
+
+
+RUNS = {
+    (machine, run): spec
+    for machine, entry in config["machines"].items()
+    for run, spec in (entry.get("runs") or {}).items()
+}
+RIG_CONFIGS = {
+    machine: load_rig_config(machine) for machine in {m for (m, _), spec in RUNS.items() if spec["source"] == "rig"}
+}
+IDENTIFICATION_SETTINGS = settings_from_config(config["identification"])
+
+
 wildcard_constraints:
     machine="|".join(MACHINE_CONFIGS),
     variant="|".join(MODEL_VARIANTS),
+    run="|".join(sorted({run for _, run in RUNS})) or "no_runs",
 
 
 def library_digest():
@@ -60,8 +91,29 @@ def machine_config(wildcards):
     return MACHINE_CONFIGS[wildcards.machine]
 
 
+def rig_file(wildcards):
+    return config["machines"][wildcards.machine]["rig"]
+
+
+def rig_config(wildcards):
+    return RIG_CONFIGS[wildcards.machine]
+
+
+def run_seed(wildcards):
+    return RUNS[(wildcards.machine, wildcards.run)].get("seed", 0)
+
+
+def rig_identification_runs():
+    return [(m, r) for (m, r), spec in RUNS.items() if spec["kind"] == "identification" and spec["source"] == "rig"]
+
+
 def all_outputs():
-    return expand(
+    acquired = [
+        f"data/{machine}/{run}/identification.{suffix}"
+        for machine, run in rig_identification_runs()
+        for suffix in ("parquet", "m")
+    ]
+    return acquired + expand(
         [
             "results/{machine}/model/{variant}/modes.tsv",
             "results/{machine}/model/{variant}/plant_frf.parquet",

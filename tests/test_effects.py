@@ -110,6 +110,24 @@ class TestInputOutputFingerprints:
         assert_allclose(slope_db_per_decade, -10.0, atol=0.1)  # a first-order lag would give -20
         assert -45.0 < np.degrees(np.angle(ratio[1])) < -44.0
 
+    def test_eddy_current_time_domain_approximation(self):
+        a, b, c, d = EFFECTS["eddy_current"](corner_hz=150.0).siso_state_space()
+        f = np.logspace(-1, np.log10(150.0 * 1e4), 300)
+        s = 2j * np.pi * f
+        rational = np.array([(c @ np.linalg.solve(sk * np.eye(a.shape[0]) - a, b) + d)[0, 0] for sk in s])
+        exact = 1 / np.sqrt(1 + 1j * f / 150.0)
+        assert np.max(np.abs(20 * np.log10(np.abs(rational / exact)))) < 0.03
+        assert np.max(np.abs(np.angle(rational / exact, deg=True))) < 0.2
+        assert np.all(np.linalg.eigvals(a).real < 0)
+
+    @pytest.mark.parametrize("name, parameters", [("amplifier_lowpass", {"cutoff_hz": 300.0}), ("sensor_lowpass", {"cutoff_hz": 300.0, "order": 2})])
+    def test_state_space_matches_response(self, name, parameters):
+        effect = EFFECTS[name](**parameters)
+        a, b, c, d = effect.siso_state_space()
+        f = np.array([10.0, 300.0, 3000.0])
+        from_ss = [(c @ np.linalg.solve(2j * np.pi * fk * np.eye(a.shape[0]) - a, b) + d)[0, 0] for fk in f]
+        assert_allclose(from_ss, effect.response(f, ["DX"])[:, 0, 0], rtol=1e-12)
+
     def test_cross_coupling_creates_off_diagonal_terms(self, demo_machine, nominal):
         c = 0.05
         response = plant_with(demo_machine, ("cross_coupling", {"coefficient": c})).radial_frequency_response(FREQUENCY)

@@ -1,6 +1,6 @@
 """The Snakemake workflow, run as a user would (subprocesses on a copy of the config)."""
 
-import os
+import json
 import shutil
 import subprocess
 import sys
@@ -56,6 +56,42 @@ def test_config_errors_fail_before_any_job(workdir, change, key):
     assert result.returncode != 0
     assert key in result.stdout + result.stderr
     assert not (workdir / "results").exists()
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (lambda c: c["truth"].update(colour="red"), "colour"),
+        (lambda c: c["truth"].update(magnetic_center_offset_m={"QX": 1e-5}), "QX"),
+        (lambda c: c.update(machine="hs_eden_like"), "is the rig of machine 'hs_eden_like'"),
+    ],
+)
+def test_rig_config_errors_fail_before_any_job(workdir, change, key):
+    path = workdir / "config" / "rigs" / "demo20.yaml"
+    config = yaml.safe_load(path.read_text())
+    change(config)
+    path.write_text(yaml.safe_dump(config))
+    result = snakemake(workdir, "--dry-run")
+    assert result.returncode != 0 and key in result.stdout + result.stderr
+
+
+def test_identification_run_is_reproducible(workdir, tmp_path):
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    config["identification"]["axes"] = ["NX", "Z"]  # a shorter run, same code path
+    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    second = tmp_path / "second"
+    shutil.copytree(workdir, second)
+    targets = ["data/demo20/ident01/identification.parquet", "data/demo20/ident01/identification.m"]
+    for directory in (workdir, second):
+        result = snakemake(directory, *targets)
+        assert result.returncode == 0, result.stderr[-3000:]
+    for target in targets:
+        assert (workdir / target).read_bytes() == (second / target).read_bytes()
+    frame, info = read_parquet(workdir / targets[0], kind="identification_log")
+    assert set(frame["excited_axis"]) == {"NX", "Z"} and info["metadata"]["seed"] == 1
+    assert "truth" not in json.dumps(info["metadata"])  # the log does not leak the rig's truth
+    progress = (workdir / "logs/demo20/acquire_identification_ident01.log").read_text()
+    assert "steps accepted: NX" in progress and "Z 100/100" in progress
 
 
 def test_unknown_top_level_key_is_rejected(workdir):

@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["MU0", "ActuatorAxis", "force", "force_derivatives"]
+__all__ = ["MU0", "ActuatorAxis", "ActuatorAxes", "force", "force_derivatives"]
 
 MU0 = 4e-7 * np.pi  # vacuum permeability [H/m] (air is taken equal to vacuum)
 
@@ -76,6 +76,34 @@ class ActuatorAxis:
             self, self.bias_current_a + control_current_a, self.bias_current_a - control_current_a, position_m
         )
         return d_current, d_position
+
+
+@dataclass(frozen=True)
+class ActuatorAxes:
+    """Several control axes' parameters as column arrays, for vectorized force evaluation.
+
+    Built by `ActuatorAxes.stack`; `force` and `force_derivatives` accept it in
+    place of an `ActuatorAxis`, with currents and positions of shape (n_axes, ...).
+    """
+
+    pole_area_m2: np.ndarray
+    turns: np.ndarray
+    pole_angle_rad: np.ndarray
+    nominal_air_gap_m: np.ndarray
+    iron_path_m: np.ndarray
+    bias_current_a: np.ndarray
+
+    force_constant: np.ndarray = None
+
+    def __post_init__(self):
+        # computed once: this object sits in the rig's per-cycle loop
+        object.__setattr__(self, "force_constant", MU0 * self.pole_area_m2 * self.turns**2 * np.cos(self.pole_angle_rad))
+
+    @classmethod
+    def stack(cls, axes):
+        """Column arrays (n_axes, 1) from a sequence of validated `ActuatorAxis`."""
+        names = ("pole_area_m2", "turns", "pole_angle_rad", "nominal_air_gap_m", "iron_path_m", "bias_current_a")
+        return cls(**{name: np.array([[getattr(a, name)] for a in axes], dtype=float) for name in names})
 
 
 def _gaps(axis, position_m):

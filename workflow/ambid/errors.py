@@ -5,7 +5,7 @@ computation) is raised as an `AmbidError` subclass that names the file, key or
 line at fault, so the workflow fails with a message a machine engineer can act on.
 """
 
-__all__ = ["AmbidError", "ConfigError", "ModelError"]
+__all__ = ["AmbidError", "ConfigError", "ModelError", "LogError"]
 
 
 class AmbidError(Exception):
@@ -40,3 +40,22 @@ class ConfigError(AmbidError):
 
 class ModelError(AmbidError):
     """A model that cannot be evaluated (singular, unstable where stability is required, ...)."""
+
+
+class LogError(AmbidError):
+    """A malformed measurement log (identification or calibration).
+
+    Parameters
+    ----------
+    source : str
+        The file (or other origin) of the log, quoted first in the message.
+    message : str
+        What is wrong, naming the offending rows, e.g.
+        ``rows 12-15 (excited_axis=DX, step=3): noise_std < 0``.
+    """
+
+    def __init__(self, source, message):
+        self.source = source
+        self.message = message
+        super().__init__(f"{source}: {message}")
+

@@ -143,6 +143,8 @@ class Plant:
             current_stiffness[k], position_stiffness[k] = bearing.electromagnet.linearize()
         self.current_stiffness = current_stiffness
         self.position_stiffness = position_stiffness
+        self.actuator_shape = actuator  # force / relative-displacement shape of each radial axis
+        self.free_stiffness = stiffness  # structure without the bearings' negative stiffness
         return SecondOrderModel(
             mass=mass,
             damping=damping,
@@ -154,6 +156,20 @@ class Plant:
         )
 
     # ------------------------------------------------------------ responses
+    def gravity_force(self, gravity_m_s2):
+        """Generalized force of gravity along -y on the rotor (y-plane modal coordinates).
+
+        The consistent load of a uniform body force: ``-g Psi^T M t`` with ``t`` the
+        rigid translation (u = 1, theta = 0 at every node).  Housings' weight is
+        carried by their mounts and left out.
+        """
+        n_modes = self.modes.shapes.shape[1]
+        translation = np.zeros(2 * self.rotor.n_nodes)
+        translation[0::2] = 1.0
+        force = np.zeros(self.radial.mass.shape[0])
+        force[n_modes : 2 * n_modes] = -gravity_m_s2 * self.modes.shapes.T @ self.rotor.planar_matrices()["mass"] @ translation
+        return force
+
     def _effect_matrices(self, effects, frequency_hz, axes):
         out = None
         for effect in effects:

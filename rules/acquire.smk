@@ -1,0 +1,26 @@
+# Stage "acquire": measurement runs against the virtual rig (the only rules that read its truth).
+# A user with a real machine skips these: runs with source "data" expect their logs in data/.
+
+
+rule acquire_identification:
+    input:
+        machine=machine_model_file,
+        rig=rig_file,
+    output:
+        log="data/{machine}/{run}/identification.parquet",
+        mfile="data/{machine}/{run}/identification.m",
+    params:
+        machine_config=machine_config,
+        rig_config=rig_config,
+        settings=config["identification"],
+        seed=run_seed,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/acquire_identification_{run}.log",
+    benchmark:
+        "logs/{machine}/acquire_identification_{run}.benchmark.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+    script:
+        "../workflow/scripts/acquire_identification.py"

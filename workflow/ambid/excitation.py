@@ -1,0 +1,299 @@
+"""Adaptive-amplitude stepped-sine identification (thesis ch. 4.2), batched.
+
+One axis at a time is excited at the controller output, ``E_u = A sin(2 pi f t)``
+(eq. 4.2).  A step settles, then records every channel over an integer number
+of periods; if the excited axis' peak response lies below ``r_min`` the
+amplitude grows by 20 %, above ``r_max`` it shrinks by 20 %, and the step
+repeats from where the machine is, as the thesis' PLC did.  A step is
+accepted when the response is in the band or the amplitude has reached
+``A_min`` / ``A_max``.
+
+Every frequency step of every axis is an independent experiment on the same
+machine at rest, so all of them run as one batch through the rig, in lockstep
+cycle by cycle; steps that are accepted leave the batch.  The Fourier
+coefficient of each channel at the excitation frequency (its phase referred to
+the start of the excitation) and a noise estimate from the two neighbouring
+DFT lines of the same window form the identification log.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigError
+from .loop import axial_transfer_functions, transfer_functions
+from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
+
+__all__ = ["SteppedSineSettings", "settings_from_config", "adapt_amplitude", "measurement_windows",
+           "initial_amplitudes", "StepPlan", "run_stepped_sine"]
+
+
+@dataclass(frozen=True)
+class SteppedSineSettings:
+    """Settings of the identification run (thesis ch. 4.2 defaults).
+
+    Attributes
+    ----------
+    response_min_m, response_max_m : float
+        Band of the excited axis' peak response (r_min = 20 um, r_max = 50 um).
+    amplitude_min_a, amplitude_max_a : float
+        Excitation amplitude limits (A_min = 50 mA, A_max = 3 A).
+    growth, shrink : float
+        Relative amplitude change when the response is below / above the band (0.2).
+    initial_amplitude_a : float or None
+        Amplitude each step starts with; None predicts it from the nominal model's
+        dynamic compliance so that the response lands mid-band.
+    settle_periods, settle_min_s, settle_max_s : float
+        Settling before each measurement: this many periods, clipped to [min, max] seconds.
+    measure_periods, measure_min_s : float
+        Measurement window: at least this many whole periods (>= 2) and this many seconds.
+    max_attempts : int
+        A step still outside the band after this many measurements is accepted as is (logged).
+    axes : tuple of str
+        Excitation order (thesis: DX, DY, NX, NY, then Z).
+    """
+
+    response_min_m: float = 20e-6
+    response_max_m: float = 50e-6
+    amplitude_min_a: float = 0.05
+    amplitude_max_a: float = 3.0
+    growth: float = 0.2
+    shrink: float = 0.2
+    initial_amplitude_a: float | None = None
+    settle_periods: float = 2.0
+    settle_min_s: float = 0.3
+    settle_max_s: float = 1.0
+    measure_periods: int = 2
+    measure_min_s: float = 0.1
+    max_attempts: int = 30
+    axes: tuple = ALL_AXES
+
+    def __post_init__(self):
+        checks = [
+            ("response_max_m", self.response_min_m > 0 and self.response_max_m > self.response_min_m, "must exceed response_min_m > 0"),
+            ("amplitude_max_a", self.amplitude_min_a > 0 and self.amplitude_max_a >= self.amplitude_min_a, "must be >= amplitude_min_a > 0"),
+            ("growth", 0 < self.growth, "must be > 0"),
+            ("shrink", 0 < self.shrink < 1, "must lie in (0, 1)"),
+            ("measure_periods", self.measure_periods >= 2 and float(self.measure_periods).is_integer(), "must be a whole number >= 2 (the noise lines sit beside it)"),
+            ("settle_max_s", 0 <= self.settle_min_s <= self.settle_max_s, "must be >= settle_min_s >= 0"),
+            ("max_attempts", self.max_attempts >= 1, "must be >= 1"),
+        ]
+        for key, ok, message in checks:
+            if not ok:
+                raise ConfigError(f"identification.{key}", message)
+        bad = [a for a in self.axes if a not in ALL_AXES]
+        if bad or len(set(self.axes)) != len(self.axes):
+            raise ConfigError("identification.axes", f"must be distinct axes of {list(ALL_AXES)}, got {list(self.axes)}")
+        if self.initial_amplitude_a is not None and not self.amplitude_min_a <= self.initial_amplitude_a <= self.amplitude_max_a:
+            raise ConfigError("identification.initial_amplitude_a", "must lie between amplitude_min_a and amplitude_max_a")
+
+
+def settings_from_config(config):
+    """`SteppedSineSettings` from the ``identification:`` mapping (unknown keys name themselves)."""
+    fields = SteppedSineSettings.__dataclass_fields__
+    unknown = set(config) - set(fields)
+    if unknown:
+        raise ConfigError(f"identification.{sorted(unknown)[0]}", "unknown setting")
+    values = dict(config)
+    if "axes" in values:
+        values["axes"] = tuple(values["axes"])
+    return SteppedSineSettings(**values)
+
+
+def adapt_amplitude(amplitude_a, peak_response_m, settings):
+    """One amplitude adaptation of thesis ch. 4.2, vectorized.
+
+    Returns
+    -------
+    new_amplitude_a : array
+        The amplitude of the next attempt (unchanged where accepted).
+    accepted : array of bool
+        Response in ``[r_min, r_max]``, or below the band at ``A_max``, or above it at ``A_min``.
+    """
+    amplitude = np.asarray(amplitude_a, dtype=float)
+    peak = np.asarray(peak_response_m, dtype=float)
+    low, high = peak < settings.response_min_m, peak > settings.response_max_m
+    at_max = amplitude >= settings.amplitude_max_a * (1 - 1e-12)
+    at_min = amplitude <= settings.amplitude_min_a * (1 + 1e-12)
+    accepted = (~low & ~high) | (low & at_max) | (high & at_min)
+    grown = np.minimum(amplitude * (1 + settings.growth), settings.amplitude_max_a)
+    shrunk = np.maximum(amplitude * (1 - settings.shrink), settings.amplitude_min_a)
+    new = np.where(accepted, amplitude, np.where(low, grown, shrunk))
+    return new, accepted
+
+
+def measurement_windows(frequency_hz, sample_time_s, settings):
+    """Settling and measurement windows of each step, and the exact excitation frequency.
+
+    The measurement window holds a whole number P of periods in a whole number N
+    of samples, so the excitation frequency is ``P / (N T)``: the grid frequency
+    moved by at most half a sample per window (< 0.03 % here).  DC (bias
+    currents) and the harmonics are then orthogonal to the lines P - 1, P, P + 1.
+
+    Returns
+    -------
+    settle_samples, measure_samples, periods : int arrays
+    exact_frequency_hz : array
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    periods = np.maximum(settings.measure_periods, np.ceil(settings.measure_min_s * f)).astype(int)
+    measure = np.round(periods / (f * sample_time_s)).astype(int)
+    settle_s = np.clip(settings.settle_periods / f, settings.settle_min_s, settings.settle_max_s)
+    settle = np.ceil(settle_s / sample_time_s).astype(int)
+    return settle, measure, periods, periods / (measure * sample_time_s)
+
+
+def initial_amplitudes(plant, axis, frequency_hz, settings):
+    """Start amplitude per step: mid-band response predicted by the nominal model's compliance.
+
+    Uses the dynamic compliance E_u -> V2 (thesis Table 4.1) of the engineer's
+    model, not the rig's truth; the adaptation corrects what the model gets wrong.
+    """
+    if settings.initial_amplitude_a is not None:
+        return np.full(len(frequency_hz), settings.initial_amplitude_a)
+    if axis == AXIAL_AXIS:
+        compliance = np.abs(axial_transfer_functions(plant, frequency_hz)["dynamic_compliance"][:, 0, 0])
+    else:
+        k = RADIAL_AXES.index(axis)
+        compliance = np.abs(transfer_functions(plant, frequency_hz)["dynamic_compliance"][:, k, k])
+    target = 0.5 * (settings.response_min_m + settings.response_max_m)
+    return np.clip(target / compliance, settings.amplitude_min_a, settings.amplitude_max_a)
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """The frequency steps to run: parallel arrays, one entry per step."""
+
+    axis: np.ndarray  # axis names
+    step: np.ndarray  # index within the axis' grid
+    frequency_hz: np.ndarray  # grid frequency
+    initial_amplitude_a: np.ndarray
+
+    @classmethod
+    def for_machine(cls, plant, settings):
+        """The thesis plan: each axis of ``settings.axes`` over its grid (radial or axial).
+
+        ``plant`` is the engineer's nominal model (start amplitudes only).
+        """
+        axes, steps, frequencies, amplitudes = [], [], [], []
+        for axis in settings.axes:
+            grid = plant.machine.axial_grid if axis == AXIAL_AXIS else plant.machine.radial_grid
+            f = grid.frequency_hz
+            axes += [axis] * f.size
+            steps.append(np.arange(f.size))
+            frequencies.append(f)
+            amplitudes.append(initial_amplitudes(plant, axis, f, settings))
+        return cls(np.array(axes), np.concatenate(steps), np.concatenate(frequencies), np.concatenate(amplitudes))
+
+
+def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=None, compact_every=64):
+    """Run all planned steps through the rig in one batch.
+
+    Parameters
+    ----------
+    rig_model : ambid.rig.RigModel
+    plan : StepPlan
+    settings : SteppedSineSettings
+    seed : int
+        Seed of the measurement noise.
+    noise : bool
+        False runs noise-free (tests).
+    progress : callable, optional
+        Called as ``progress(accepted_per_axis: dict, simulated_s: float)`` whenever steps are accepted.
+    compact_every : int
+        Cycles between removals of accepted steps from the batch.
+
+    Returns
+    -------
+    records : list of dict
+        One per step, the step records of `ambid.logs.identification_frame`
+        (``excited_axis``, ``step``, ``frequency_hz`` (exact), ``amplitude_a``,
+        ``attempts``, ``coefficients`` (20,), ``noise_std`` (20,)), plus
+        ``peak_response_m`` (peak of the excited axis' V2 about its mean over the
+        window) and ``in_band``.
+    stats : dict
+        ``cycles`` (lockstep controller cycles), ``simulated_s`` (their time),
+        ``experiment_s`` (the time the steps would take one after another, as on
+        a real machine), ``member_cycles`` (cycles simulated summed over steps).
+    """
+    t = rig_model.sample_time_s
+    n_steps = len(plan.step)
+    settle, measure, periods, exact = measurement_windows(plan.frequency_hz, t, settings)
+    axis_index = np.array([ALL_AXES.index(a) for a in plan.axis])
+    offsets = np.concatenate([[0], np.cumsum(measure)])
+    recordings = np.empty((20, offsets[-1]))  # the measurement windows, one segment per step
+    rng = np.random.default_rng(seed) if noise else None
+
+    ids = np.arange(n_steps)  # batch member -> step
+    amplitude = plan.initial_amplitude_a.astype(float).copy()
+    attempts = np.ones(n_steps, dtype=int)
+    counter = np.zeros(n_steps, dtype=int)  # cycles into the current attempt
+    elapsed = np.zeros(n_steps, dtype=int)  # cycles since the step's excitation started
+    state = rig_model.initial_state(n_steps)
+    omega_t = 2 * np.pi * exact * t
+    records = [None] * n_steps
+    finished = np.zeros(n_steps, dtype=bool)
+    accepted_count = {a: 0 for a in settings.axes}
+    cycles = member_cycles = 0
+    while ids.size:
+        live = ids
+        excitation = np.zeros((len(ALL_AXES), live.size))
+        excitation[axis_index[live], np.arange(live.size)] = amplitude[live] * np.sin(omega_t[live] * elapsed[live])
+        channels = rig_model.step(state, excitation, rng)
+        window = counter[live] - settle[live]
+        measuring = (window >= 0) & (window < measure[live]) & ~finished[live]
+        if measuring.any():
+            columns = offsets[live[measuring]] + window[measuring]
+            recordings[:, columns] = channels[:, measuring]
+        counter[live] += 1
+        elapsed[live] += 1
+        cycles += 1
+        member_cycles += live.size
+        done = (counter[live] == settle[live] + measure[live]) & ~finished[live]
+        if done.any():
+            for step in live[done]:
+                records[step] = _evaluate(step, recordings[:, offsets[step] : offsets[step + 1]], periods[step], exact[step],
+                                          elapsed[step] - measure[step], t, axis_index[step], amplitude[step], attempts[step], plan)
+            peaks = np.array([records[s]["peak_response_m"] for s in live[done]])
+            new, accepted = adapt_amplitude(amplitude[live[done]], peaks, settings)
+            accepted |= attempts[live[done]] >= settings.max_attempts
+            for step, ok, value, peak in zip(live[done], accepted, new, peaks):
+                records[step]["in_band"] = bool(settings.response_min_m <= peak <= settings.response_max_m)
+                if ok:
+                    finished[step] = True
+                    accepted_count[plan.axis[step]] += 1
+                else:
+                    amplitude[step] = value
+                    attempts[step] += 1
+                    counter[step] = 0
+            if progress is not None and accepted.any():
+                progress(dict(accepted_count), cycles * t)
+        if cycles % compact_every == 0:
+            keep = ~finished[ids]
+            if not keep.all():
+                ids = ids[keep]
+                state = state.take(keep)
+    experiment_s = float(np.sum(elapsed) * t)
+    return records, {"cycles": cycles, "simulated_s": cycles * t, "experiment_s": experiment_s, "member_cycles": member_cycles}
+
+
+def _evaluate(step, segment, periods, frequency_hz, window_start_cycle, sample_time_s, axis, amplitude_a, attempts, plan):
+    """Fourier coefficients at the excitation line and noise from the lines beside it."""
+    n = segment.shape[1]
+    k = np.arange(n)
+    lines = np.exp(-2j * np.pi * np.outer(k, [periods - 1, periods, periods + 1]) / n)
+    spectrum = (2.0 / n) * segment @ lines  # (20, 3)
+    # refer the phase to the start of the excitation: x = A sin(w (k0 + k) T)
+    coefficients = spectrum[:, 1] * np.exp(-2j * np.pi * frequency_hz * window_start_cycle * sample_time_s)
+    noise_std = np.sqrt(0.5 * (np.abs(spectrum[:, 0]) ** 2 + np.abs(spectrum[:, 2]) ** 2))
+    v2 = segment[5 + axis]
+    return {
+        "excited_axis": str(plan.axis[step]),
+        "step": int(plan.step[step]),
+        "frequency_hz": float(frequency_hz),
+        "amplitude_a": float(amplitude_a),
+        "attempts": int(attempts),
+        "coefficients": coefficients,
+        "noise_std": noise_std,
+        "peak_response_m": float(np.max(np.abs(v2 - np.mean(v2)))),
+    }

@@ -1,0 +1,315 @@
+"""The identification log (schema version 1): one row per (excited axis, step, channel).
+
+The stepped-sine identification (thesis ch. 4.2) excites one axis at a time
+and, for every accepted frequency step, records the Fourier coefficient of
+every channel at the excitation frequency.  The 20 channels are, for each axis
+of `ALL_AXES`, the plant input ``U2_<axis>`` (commanded control current [A]),
+the plant output ``V2_<axis>`` (measured position [m]) and the measured coil
+currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  Complex coefficients
+are stored as ``re`` / ``im`` columns in SI units, with the standard deviation
+``noise_std`` of each coefficient.  `validate_identification_log` checks the
+contract on writing and on reading, so a malformed log fails with the rows at
+fault instead of corrupting an FRF downstream.
+"""
+
+import numpy as np
+import pandas as pd
+
+from .errors import LogError
+from .io import read_parquet, write_parquet
+from .machine import ALL_AXES
+
+__all__ = [
+    "CHANNELS",
+    "COLUMNS",
+    "KIND",
+    "UNITS",
+    "channel_unit",
+    "identification_frame",
+    "write_identification_log",
+    "read_identification_log",
+    "validate_identification_log",
+]
+
+KIND = "identification_log"
+
+#: Channel names in their canonical order: U2 of all axes, V2 of all axes, then coil current pairs.
+CHANNELS = (
+    tuple(f"U2_{axis}" for axis in ALL_AXES)
+    + tuple(f"V2_{axis}" for axis in ALL_AXES)
+    + tuple(name for axis in ALL_AXES for name in (f"I_upper_{axis}", f"I_lower_{axis}"))
+)
+
+#: Column name -> kind of dtype required ("str", "int" or "float").
+COLUMNS = {
+    "excited_axis": "str",
+    "step": "int",
+    "frequency_hz": "float",
+    "amplitude_a": "float",
+    "channel": "str",
+    "re": "float",
+    "im": "float",
+    "noise_std": "float",
+    "attempts": "int",
+}
+
+_COEFFICIENT_UNIT = "SI (A for U2_* and I_*, m for V2_*)"
+UNITS = {
+    "frequency_hz": "Hz",
+    "amplitude_a": "A",
+    "re": _COEFFICIENT_UNIT,
+    "im": _COEFFICIENT_UNIT,
+    "noise_std": _COEFFICIENT_UNIT,
+    "step": "-",
+    "attempts": "-",
+}
+_STEP_KEYS = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts", "coefficients", "noise_std")
+_MAX_GROUPS_QUOTED = 4
+
+
+def channel_unit(name):
+    """Unit of a channel's coefficient: ``"m"`` for positions ``V2_*``, ``"A"`` for currents.
+
+    Raises
+    ------
+    LogError
+        If ``name`` is not one of `CHANNELS`.
+    """
+    if name not in CHANNELS:
+        raise LogError("channel_unit", f"unknown channel {name!r}; known: {', '.join(CHANNELS)}")
+    return "m" if name.startswith("V2_") else "A"
+
+
+def identification_frame(steps):
+    """Long-format identification log from a list of step records.
+
+    Parameters
+    ----------
+    steps : list of dict
+        One record per excited axis and accepted frequency step, with keys
+        ``excited_axis`` (str, one of `ALL_AXES`), ``step`` (int, 0-based index
+        in that axis' grid), ``frequency_hz`` (float, excitation frequency
+        [Hz]), ``amplitude_a`` (float, excitation amplitude finally used [A]),
+        ``attempts`` (int >= 1, amplitude adaptations used), ``coefficients``
+        (complex array (20,), Fourier coefficients in `CHANNELS` order [A or m])
+        and ``noise_std`` (float array (20,), standard deviation of each
+        coefficient [A or m]).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``excited_axis, step, frequency_hz, amplitude_a, channel, re,
+        im, noise_std, attempts``; one row per (step, channel), ordered by axis
+        (`ALL_AXES` order), step and channel (`CHANNELS` order).
+
+    Raises
+    ------
+    LogError
+        If a record lacks a key, names an unknown axis or has arrays of the wrong shape.
+    """
+    n_channels = len(CHANNELS)
+    for index, record in enumerate(steps):
+        where = f"step record {index}"
+        missing = [key for key in _STEP_KEYS if key not in record]
+        if missing:
+            raise LogError("identification_frame", f"{where}: missing key(s) {missing}")
+        if record["excited_axis"] not in ALL_AXES:
+            raise LogError("identification_frame", f"{where}: unknown axis {record['excited_axis']!r}")
+        for key in ("coefficients", "noise_std"):
+            if np.shape(record[key]) != (n_channels,):
+                raise LogError("identification_frame", f"{where}: {key} has shape {np.shape(record[key])}, expected ({n_channels},)")
+    records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r["step"])))
+    coefficients = np.array([np.asarray(r["coefficients"], dtype=complex) for r in records]).reshape(-1)
+    noise_std = np.array([np.asarray(r["noise_std"], dtype=float) for r in records]).reshape(-1)
+
+    def per_step(key, dtype):
+        return np.repeat(np.array([r[key] for r in records], dtype=dtype), n_channels)
+
+    return pd.DataFrame(
+        {
+            "excited_axis": per_step("excited_axis", object),
+            "step": per_step("step", np.int64),
+            "frequency_hz": per_step("frequency_hz", np.float64),
+            "amplitude_a": per_step("amplitude_a", np.float64),
+            "channel": np.tile(np.array(CHANNELS, dtype=object), len(records)),
+            "re": coefficients.real.astype(np.float64),
+            "im": coefficients.imag.astype(np.float64),
+            "noise_std": noise_std,
+            "attempts": per_step("attempts", np.int64),
+        }
+    )
+
+
+def write_identification_log(frame, path, metadata=None):
+    """Validate and write an identification log as Parquet (atomically).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        As built by `identification_frame`.
+    path : str or Path
+        Target file, conventionally ``data/<machine>/<run>/identification.parquet``.
+    metadata : dict, optional
+        JSON-serialisable run metadata (machine, run, rig, seed, settings, ...),
+        stored with ``channel_units`` (channel -> ``"A"`` / ``"m"``).
+
+    Raises
+    ------
+    LogError
+        If the frame breaks the contract; nothing is written then.
+    """
+    validate_identification_log(frame, str(path))
+    channel_units = {name: channel_unit(name) for name in CHANNELS}
+    write_parquet(
+        frame[list(COLUMNS)].reset_index(drop=True),
+        path,
+        units=UNITS,
+        kind=KIND,
+        metadata={**(metadata or {}), "channel_units": channel_units},
+    )
+
+
+def read_identification_log(path):
+    """Read and validate an identification log.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+    info : dict
+        ``schema_version``, ``kind``, ``units`` and ``metadata`` (see `ambid.io.read_parquet`).
+
+    Raises
+    ------
+    AmbidError
+        If the file is no identification log of this schema version.
+    LogError
+        If its content breaks the contract.
+    """
+    frame, info = read_parquet(path, kind=KIND)
+    validate_identification_log(frame, str(path))
+    return frame, info
+
+
+# ---------------------------------------------------------------------------- validation
+def _ranges(positions):
+    """``[12, 13, 14, 15, 20]`` -> ``"rows 12-15, 20"``."""
+    positions = sorted(int(p) for p in positions)
+    parts, start = [], positions[0]
+    for previous, current in zip(positions, positions[1:] + [None]):
+        if current != previous + 1:
+            parts.append(f"{start}" if start == previous else f"{start}-{previous}")
+            start = current
+    word = "row" if len(positions) == 1 else "rows"
+    return f"{word} {', '.join(parts)}"
+
+
+def _where(frame, mask):
+    """Rows selected by ``mask``, grouped by (excited_axis, step), as message text."""
+    positions = np.flatnonzero(np.asarray(mask))
+    groups = {}
+    for position in positions:
+        key = (frame["excited_axis"].iat[position], frame["step"].iat[position])
+        groups.setdefault(key, []).append(position)
+    parts = [f"{_ranges(rows)} (excited_axis={axis}, step={step})" for (axis, step), rows in list(groups.items())[:_MAX_GROUPS_QUOTED]]
+    if len(groups) > _MAX_GROUPS_QUOTED:
+        parts.append(f"and {len(groups) - _MAX_GROUPS_QUOTED} more (axis, step)")
+    return ", ".join(parts)
+
+
+def _check_row(frame, mask, source, what, per_channel=False):
+    mask = np.asarray(mask, dtype=bool)
+    if mask.any():
+        first = int(np.flatnonzero(mask)[0])
+        note = f" (first: channel {frame['channel'].iat[first]})" if per_channel else ""
+        raise LogError(source, f"{_where(frame, mask)}: {what}{note}")
+
+
+def _check_columns(frame, source):
+    missing = [name for name in COLUMNS if name not in frame.columns]
+    if missing:
+        raise LogError(source, f"missing column(s) {missing}; an identification log has {list(COLUMNS)}")
+    extra = [name for name in frame.columns if name not in COLUMNS]
+    if extra:
+        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)}")
+    required = {
+        "str": pd.api.types.is_string_dtype,
+        "int": pd.api.types.is_integer_dtype,
+        "float": pd.api.types.is_float_dtype,
+    }
+    for name, kind in COLUMNS.items():
+        if not required[kind](frame[name]):
+            raise LogError(source, f"column {name!r} has dtype {frame[name].dtype}, expected {kind}")
+        missing_values = frame[name].isna().to_numpy()
+        if kind != "float" and missing_values.any():  # NaN floats are reported by row, as not finite
+            raise LogError(source, f"{_ranges(np.flatnonzero(missing_values)[:20])}: missing value in column {name!r}")
+
+
+def validate_identification_log(frame, source):
+    """Check an identification log against the schema-1 contract.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+    source : str
+        Where the frame comes from (file name), quoted in the message.
+
+    Raises
+    ------
+    LogError
+        Naming ``source`` and the offending rows (positional, 0-based) with
+        their excited axis and step, when a column is missing, extra or of the
+        wrong dtype; an axis or channel is unknown; a value is not finite;
+        ``step < 0``, ``frequency_hz <= 0``, ``amplitude_a <= 0``,
+        ``noise_std < 0`` or ``attempts < 1``; an (axis, step) has a duplicate
+        or missing channel, or rows disagreeing on frequency, amplitude or
+        attempts; or an axis' frequency grid does not strictly increase with step.
+    """
+    _check_columns(frame, source)
+    frame = frame.reset_index(drop=True)
+    if frame.empty:
+        raise LogError(source, "no rows (an identification log holds at least one step)")
+    unknown_axis = ~frame["excited_axis"].isin(ALL_AXES).to_numpy()
+    if unknown_axis.any():
+        first = int(np.flatnonzero(unknown_axis)[0])
+        raise LogError(
+            source, f"{_where(frame, unknown_axis)}: unknown excited_axis {frame['excited_axis'].iat[first]!r}; known: {list(ALL_AXES)}"
+        )
+    unknown_channel = ~frame["channel"].isin(CHANNELS).to_numpy()
+    if unknown_channel.any():
+        first = int(np.flatnonzero(unknown_channel)[0])
+        raise LogError(source, f"{_where(frame, unknown_channel)}: unknown channel {frame['channel'].iat[first]!r}")
+    for name in ("frequency_hz", "amplitude_a", "re", "im", "noise_std"):
+        _check_row(frame, ~np.isfinite(frame[name].to_numpy(dtype=float)), source, f"{name} is not finite", per_channel=True)
+    _check_row(frame, frame["step"].to_numpy() < 0, source, "step < 0 (steps are 0-based grid indices)")
+    _check_row(frame, frame["frequency_hz"].to_numpy() <= 0, source, "frequency_hz <= 0")
+    _check_row(frame, frame["amplitude_a"].to_numpy() <= 0, source, "amplitude_a <= 0 (no excitation)")
+    _check_row(frame, frame["noise_std"].to_numpy() < 0, source, "noise_std < 0", per_channel=True)
+    _check_row(frame, frame["attempts"].to_numpy() < 1, source, "attempts < 1")
+
+    duplicated = frame.duplicated(["excited_axis", "step", "channel"], keep=False).to_numpy()
+    _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step)", per_channel=True)
+    groups = frame.groupby(["excited_axis", "step"], sort=False).indices
+    for (axis, step), rows in groups.items():
+        mask = np.zeros(len(frame), dtype=bool)
+        mask[rows] = True
+        absent = [name for name in CHANNELS if name not in set(frame["channel"].iloc[rows])]
+        if absent:
+            raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
+        for name in ("frequency_hz", "amplitude_a", "attempts"):
+            values = frame[name].iloc[rows].unique()
+            if len(values) > 1:
+                raise LogError(source, f"{_where(frame, mask)}: rows disagree on {name} ({', '.join(map(repr, values.tolist()))})")
+
+    for axis in ALL_AXES:
+        grid = frame[frame["excited_axis"] == axis].groupby("step")["frequency_hz"].first().sort_index()
+        steps, frequency_hz = grid.index.to_numpy(), grid.to_numpy()
+        bad = np.flatnonzero(np.diff(frequency_hz) <= 0)
+        if bad.size:
+            k = bad[0]
+            pair = (steps[k], steps[k + 1])
+            mask = ((frame["excited_axis"] == axis) & frame["step"].isin(pair)).to_numpy()
+            raise LogError(
+                source,
+                f"{_where(frame, mask)}: frequency grid of {axis} not strictly increasing with step "
+                f"(step {pair[1]} at {frequency_hz[k + 1]:.6g} Hz follows step {pair[0]} at {frequency_hz[k]:.6g} Hz)",
+            )

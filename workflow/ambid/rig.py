@@ -1,0 +1,507 @@
+"""Virtual AMB test rig: a nonlinear, closed-loop, sampled-data simulation of a machine's truth.
+
+The truth is a nominal machine plus hidden effects with true parameters (the
+effect library) plus what only a rig has: magnetic-center offsets, gravity,
+sensor noise and ADC quantization, current-measurement noise and offsets, and
+bias-current errors (``config/rigs/<name>.yaml``).  Nothing on the model side
+reads it; only the acquisition rules drive it.
+
+Signal chain of one controller cycle (thesis Fig. 4.1, ISO 14839-3)::
+
+    V2 = Q(delay(sensor(x)) + noise)        measured position
+    U1 = C(setpoint - V2)                   digital controller
+    U2 = U1 + E_u                           excitation at the controller output
+    coil current = amplifier(U2)            measured as i_b +- i + offset + noise
+    F = eq. 3.6 (i_b +- eddy(coupling(i)), x - x_magnetic_center)
+
+Linear parts are discretized exactly with a zero-order hold at the controller
+cycle, around the true operating point (the static equilibrium under gravity
+and offsets that the integral action settles to).  The force law's deviation
+from its linearization there is evaluated every cycle from the sampled state
+and held over the cycle, so the simulation is exact for the linearized truth
+and second-order accurate in the nonlinearity.  Many frequency steps run as
+one batch: every array has a trailing batch axis.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from .bearing import ActuatorAxes, force, force_derivatives
+from .effects import effect_from_config, split_effects
+from .errors import ConfigError, ModelError
+from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
+from .plant import Plant
+
+__all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]
+
+N_AXES = len(ALL_AXES)
+
+
+@dataclass(frozen=True)
+class RigImperfections:
+    """What only a real rig has (all per axis in ALL_AXES order, SI units).
+
+    Attributes
+    ----------
+    magnetic_center_offset_m : array (5,)
+        Position of the magnetic center in sensor coordinates.
+    gravity_m_s2 : float
+        Acts along -y on the rotor (DY, NY axes).
+    sensor_noise_m, sensor_resolution_m : float
+        Standard deviation of the position noise and the ADC step (0: none).
+    current_noise_a, current_resolution_a : float
+        Same for the coil-current measurements.
+    current_offset_a : array (5, 2)
+        Offsets of the upper and lower coil-current measurements.
+    bias_current_error : array (5,)
+        Relative error of the bias current the amplifiers actually deliver.
+    """
+
+    magnetic_center_offset_m: np.ndarray
+    gravity_m_s2: float = 9.81
+    sensor_noise_m: float = 0.0
+    sensor_resolution_m: float = 0.0
+    current_noise_a: float = 0.0
+    current_resolution_a: float = 0.0
+    current_offset_a: np.ndarray = None
+    bias_current_error: np.ndarray = None
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A virtual rig: the truth machine (with its effects) and the rig's imperfections."""
+
+    name: str
+    machine: object
+    imperfections: RigImperfections
+    description: str = ""
+
+
+def _per_axis(mapping, path, default=0.0, width=None):
+    mapping = mapping or {}
+    unknown = set(mapping) - set(ALL_AXES)
+    if unknown:
+        raise ConfigError(f"{path}.{sorted(unknown)[0]}", f"not an axis {list(ALL_AXES)}")
+    shape = () if width is None else (width,)
+    values = np.zeros((N_AXES,) + shape)
+    for k, axis in enumerate(ALL_AXES):
+        value = np.asarray(mapping.get(axis, default), dtype=float)
+        if value.shape != shape or not np.all(np.isfinite(value)):
+            raise ConfigError(f"{path}.{axis}", f"expected {'a number' if width is None else f'{width} numbers'}, got {mapping.get(axis)}")
+        values[k] = value
+    return values
+
+
+def rig_from_config(rig_config, machine_config, source=None):
+    """Build a `Rig` from its YAML mapping and the nominal machine's.
+
+    ``truth.effects`` are added to the nominal machine's own effects.
+    """
+    try:
+        truth = rig_config.get("truth") or {}
+        machine = machine_from_config(machine_config, name=rig_config.get("machine"))
+        hidden = [effect_from_config(spec, f"truth.effects[{i}]", machine) for i, spec in enumerate(truth.get("effects") or ())]
+        machine = machine.with_effects(list(machine.effects) + hidden)
+        imperfections = RigImperfections(
+            magnetic_center_offset_m=_per_axis(truth.get("magnetic_center_offset_m"), "truth.magnetic_center_offset_m"),
+            gravity_m_s2=float(truth.get("gravity_m_s2", 9.81)),
+            sensor_noise_m=float(truth.get("sensor_noise_m", 0.0)),
+            sensor_resolution_m=float(truth.get("sensor_resolution_m", 0.0)),
+            current_noise_a=float(truth.get("current_noise_a", 0.0)),
+            current_resolution_a=float(truth.get("current_resolution_a", 0.0)),
+            current_offset_a=_per_axis(truth.get("current_offset_a"), "truth.current_offset_a", default=[0.0, 0.0], width=2),
+            bias_current_error=_per_axis(truth.get("bias_current_error"), "truth.bias_current_error"),
+        )
+        for key in ("sensor_noise_m", "sensor_resolution_m", "current_noise_a", "current_resolution_a", "gravity_m_s2"):
+            if getattr(imperfections, key) < 0:
+                raise ConfigError(f"truth.{key}", "must be >= 0")
+        if machine.axial_electromagnet is None:
+            raise ConfigError("machine", "the virtual rig needs a machine with an axial bearing")
+        return Rig(name=rig_config.get("name", "rig"), machine=machine, imperfections=imperfections,
+                   description=rig_config.get("description", ""))
+    except ConfigError as error:
+        raise error.within(source=source) from None
+
+
+# ----------------------------------------------------------------- state space
+def _series(blocks):
+    """SISO series connection of (A, B, C, D) blocks; an empty chain is a unit gain."""
+    a, b, c, d = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.eye(1)
+    for a2, b2, c2, d2 in blocks:
+        n1, n2 = a.shape[0], a2.shape[0]
+        a = np.block([[a, np.zeros((n1, n2))], [b2 @ c, a2]])
+        b = np.vstack([b, b2 @ d])
+        c = np.hstack([d2 @ c, c2])
+        d = d2 @ d
+    return a, b, c, d
+
+
+def _diagonal_chains(effects, kinds):
+    """Block-diagonal MIMO system of per-axis SISO chains over ALL_AXES."""
+    blocks = [_series([e.siso_state_space() for e in effects if e.name in kinds and e.acts_on(axis)]) for axis in ALL_AXES]
+    a = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
+    b = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
+    c = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
+    d = np.diag([blk[3][0, 0] for blk in blocks])
+    return a.reshape(a.shape[0], a.shape[0]), b.reshape(a.shape[0], N_AXES), c.reshape(N_AXES, a.shape[0]), d
+
+
+def _coupling(effects, side):
+    matrix = np.eye(N_AXES)
+    for effect in effects:
+        if effect.name == "cross_coupling" and effect.side == side:
+            matrix = effect.matrix(ALL_AXES) @ matrix
+    return matrix
+
+
+def _zoh(a, b, time_s):
+    n, m = b.shape
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n], augmented[:n, n:] = a, b
+    transition = scipy.linalg.expm(augmented * time_s)
+    return transition[:n, :n], transition[:n, n:]
+
+
+@dataclass
+class SimulationState:
+    """Batched state of the rig and its controllers; trailing axis = batch member."""
+
+    plant: np.ndarray  # (n_states, B)
+    controller: np.ndarray  # (n_controller_states, B)
+    sensor_buffer: np.ndarray  # (buffer_length, 5, B) delayed sensor samples
+    step: int
+
+    def take(self, members):
+        """Keep only the given batch members (compaction of finished ones)."""
+        return SimulationState(self.plant[:, members], self.controller[:, members], self.sensor_buffer[:, :, members], self.step)
+
+
+class RigModel:
+    """The rig's truth, linearized at its operating point and discretized, plus the nonlinear step.
+
+    Parameters
+    ----------
+    rig : Rig
+    setpoint_m : array (5,), optional
+        Position controller set points (default 0, the sensor zero).
+    """
+
+    def __init__(self, rig, setpoint_m=None):
+        self.rig = rig
+        machine = rig.machine
+        self.imperfections = imp = rig.imperfections
+        self.sample_time_s = machine.sample_time_s
+        self.setpoint_m = np.zeros(N_AXES) if setpoint_m is None else np.asarray(setpoint_m, dtype=float)
+        plant = Plant(machine)
+        self.plant = plant
+        _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
+        nominal = [b.electromagnet for b in machine.radial_bearings for _ in (0, 1)] + [machine.axial_electromagnet]
+        self.true_bias_a = np.array([a.bias_current_a for a in nominal]) * (1 + imp.bias_current_error)
+        self.actuators = ActuatorAxes.stack(nominal)
+        self.rotor_mass_kg = machine.rotor.mass_kg
+
+        # structure: radial modal model (no bearing stiffness) + axial rigid body
+        radial = plant.radial
+        n_r = radial.mass.shape[0]
+        n_q = n_r + 1
+        self.n_q = n_q
+        self.mass = scipy.linalg.block_diag(radial.mass, [[self.rotor_mass_kg]])
+        self.damping = scipy.linalg.block_diag(radial.damping + radial.speed_rad_s * radial.gyroscopic, [[0.0]])
+        self.free_stiffness = scipy.linalg.block_diag(plant.free_stiffness, [[0.0]])
+        self.actuator_shape = np.zeros((n_q, N_AXES))
+        self.actuator_shape[:n_r, :4] = plant.actuator_shape
+        self.actuator_shape[n_r, 4] = 1.0
+        self.sensor_shape = np.zeros((N_AXES, n_q))
+        self.sensor_shape[:4, :n_r] = radial.output_matrix
+        self.sensor_shape[4, n_r] = 1.0
+        self.gravity = np.concatenate([plant.gravity_force(imp.gravity_m_s2), [0.0]])
+
+        # effects in the time domain
+        self.input_chain = _diagonal_chains(input_effects, {"amplifier_lowpass"})
+        self.force_chain = _diagonal_chains(input_effects, {"eddy_current"})
+        self.sensor_chain = _diagonal_chains(output_effects, {"sensor_lowpass"})
+        self.input_coupling = _coupling(input_effects, "input")
+        self.output_coupling = _coupling(output_effects, "output")
+        delay_s = np.array([sum(e.delay_s for e in output_effects if e.name == "delay" and e.acts_on(a)) for a in ALL_AXES])
+
+        controllers = list(machine.radial_controllers) + [machine.axial_controller]
+        self._controller_matrices(controllers)
+        self.operating_point = self._operating_point(controllers)
+        self._linear_system()
+        self._delays(delay_s)
+        self._initial = self._steady_state()
+        # one product gives every per-cycle output of the state: coil, force current, actuator
+        # position, delayed sensor sample
+        self.state_outputs = np.vstack([self.coil_state, self.force_state, self.position_state, self.delayed_state])
+        radius = self.closed_loop_spectral_radius()
+        if radius >= 1.0:
+            raise ModelError(f"rig {rig.name}: the linearized truth's closed loop is unstable (spectral radius {radius:.6f})")
+
+    # ------------------------------------------------------------ controller
+    def _controller_matrices(self, controllers):
+        blocks = [c.discrete_state_space() for c in controllers]
+        self.controller_blocks = blocks
+        self.ctrl_a = scipy.linalg.block_diag(*[b[0] for b in blocks])
+        self.ctrl_b = scipy.linalg.block_diag(*[b[1] for b in blocks])
+        self.ctrl_c = scipy.linalg.block_diag(*[b[2] for b in blocks])
+        self.ctrl_d = np.diag([b[3][0, 0] for b in blocks])
+        self.integral_action = np.array([c.integral_gain_a_per_m_s > 0 for c in controllers])
+        self.dc_gain = np.array([c.frequency_response([0.0])[0].real if c.integral_gain_a_per_m_s == 0 else np.inf for c in controllers])
+
+    # -------------------------------------------------------- operating point
+    def _force_current(self, command_a):
+        """Static force-producing current from a static command (all chains have unit DC gain)."""
+        return self.input_coupling @ command_a
+
+    def _operating_point(self, controllers):
+        """Static equilibrium: structure at rest under gravity, sensors at the set points.
+
+        With integral action the controller drives the measured position to its
+        set point; without, the static current is ``kp (setpoint - y)``.
+        """
+        imp, shape = self.imperfections, self.actuator_shape
+        scale_q = 1e-6
+
+        def residual(v):
+            q, command = v[: self.n_q] * scale_q, v[self.n_q :]
+            current = self._force_current(command)
+            x = shape.T @ q - imp.magnetic_center_offset_m
+            f = force(self.actuators, self.true_bias_a[:, None] + current[:, None], self.true_bias_a[:, None] - current[:, None], x[:, None])[:, 0]
+            statics = self.free_stiffness @ q - shape @ f - self.gravity
+            sensed = self.output_coupling @ (self.sensor_shape @ q) - self.setpoint_m
+            proportional = np.where(self.integral_action, 0.0, self.dc_gain)
+            loop = np.where(self.integral_action, sensed / scale_q, command + proportional * sensed)
+            return np.concatenate([statics, loop])
+
+        solution = scipy.optimize.root(residual, np.zeros(self.n_q + N_AXES), method="hybr", options={"xtol": 1e-13})
+        if not solution.success or np.max(np.abs(residual(solution.x))) > 1e-6:
+            raise ModelError(f"rig {self.rig.name}: no static equilibrium found ({solution.message})")
+        q, command = solution.x[: self.n_q] * scale_q, solution.x[self.n_q :]
+        current = self._force_current(command)
+        position = self.actuator_shape.T @ q - imp.magnetic_center_offset_m
+        f0, ki, kx = force_derivatives(self.actuators, self.true_bias_a[:, None] + current[:, None], self.true_bias_a[:, None] - current[:, None], position[:, None])
+        if np.any(self.true_bias_a - np.abs(current) <= 0):
+            raise ModelError(f"rig {self.rig.name}: a coil current is negative at the operating point")
+        return dict(q=q, command=command, force_current=current, actuator_position=position + imp.magnetic_center_offset_m,
+                    force=f0[:, 0], current_stiffness=ki[:, 0], position_stiffness=kx[:, 0])
+
+    # ------------------------------------------------------------ linear part
+    def _linear_system(self):
+        """Continuous linear truth around the operating point, then its exact ZOH discretization.
+
+        State ``[input chain, force chain, q, q', sensor chain]``; inputs ``[U2 (5),
+        force-law residual (5), 1]``.
+        """
+        op = self.operating_point
+        ki, kx = op["current_stiffness"], op["position_stiffness"]
+        ai, bi, ci, di = self.input_chain
+        ae, be, ce, de = self.force_chain
+        ao, bo, co, do = self.sensor_chain
+        n_i, n_e, n_o, n_q = ai.shape[0], ae.shape[0], ao.shape[0], self.n_q
+        inverse_mass = np.linalg.inv(self.mass)
+        shape = self.actuator_shape
+        stiffness = self.free_stiffness - shape @ np.diag(kx) @ shape.T
+        # force-producing current = X_in (ce x_e + de (ci x_i + di u))
+        coupling = self.input_coupling
+        constant = op["force"] - ki * op["force_current"] - kx * op["actuator_position"]
+        sizes = [n_i, n_e, n_q, n_q, n_o]
+        offsets = np.cumsum([0] + sizes)
+        n = offsets[-1]
+        blk = lambda k: slice(offsets[k], offsets[k + 1])  # noqa: E731
+        a = np.zeros((n, n))
+        b = np.zeros((n, 2 * N_AXES + 1))
+        u_cmd, u_res, u_one = slice(0, N_AXES), slice(N_AXES, 2 * N_AXES), 2 * N_AXES
+        a[blk(0), blk(0)] = ai
+        b[blk(0), u_cmd] = bi
+        a[blk(1), blk(0)] = be @ ci
+        a[blk(1), blk(1)] = ae
+        b[blk(1), u_cmd] = be @ di
+        force_gain = inverse_mass @ shape @ np.diag(ki) @ coupling
+        a[blk(2), blk(3)] = np.eye(n_q)
+        a[blk(3), blk(2)] = -inverse_mass @ stiffness
+        a[blk(3), blk(3)] = -inverse_mass @ self.damping
+        a[blk(3), blk(0)] = force_gain @ de @ ci
+        a[blk(3), blk(1)] = force_gain @ ce
+        b[blk(3), u_cmd] = force_gain @ de @ di
+        b[blk(3), u_res] = inverse_mass @ shape
+        b[blk(3), u_one] = inverse_mass @ (shape @ constant + self.gravity)
+        a[blk(4), blk(2)] = bo @ self.sensor_shape
+        a[blk(4), blk(4)] = ao
+        self.a, self.b, self.n_states, self.blocks = a, b, n, blk
+        # outputs of the state: sensor signal before delay, coil current, force current, actuator position
+        sensor = np.zeros((N_AXES, n))
+        sensor[:, blk(2)] = self.output_coupling @ do @ self.sensor_shape
+        sensor[:, blk(4)] = self.output_coupling @ co
+        self.sensor_output = sensor
+        self.coil_state, self.coil_input = np.zeros((N_AXES, n)), di
+        self.coil_state[:, blk(0)] = ci
+        self.force_state = np.zeros((N_AXES, n))
+        self.force_state[:, blk(0)] = coupling @ de @ ci
+        self.force_state[:, blk(1)] = coupling @ ce
+        self.force_input = coupling @ de @ di
+        self.position_state = np.zeros((N_AXES, n))
+        self.position_state[:, blk(2)] = shape.T
+        self.transition, self.input_matrix = _zoh(a, b, self.sample_time_s)
+
+    def _delays(self, delay_s):
+        """Sensor delays: each axis samples ``C x`` at ``t_k - tau`` exactly.
+
+        With ``tau = m T + delta``, the sample is ``C (Phi(T - delta) x_j + Gamma(T -
+        delta) u_j)`` of step ``j = k - m - 1``, i.e. a fractional-step output pushed
+        into a buffer and read ``m + 1`` cycles later (no delay: ``m + 1 = 1``).
+        """
+        t = self.sample_time_s
+        whole = np.floor(delay_s / t + 1e-9).astype(int)
+        fraction = delay_s - whole * t
+        self.delay_steps = whole + 1
+        self.buffer_length = int(self.delay_steps.max()) + 1
+        self.delayed_state = np.zeros((N_AXES, self.n_states))
+        self.delayed_input = np.zeros((N_AXES, self.input_matrix.shape[1]))
+        for k in range(N_AXES):
+            phi, gamma = _zoh(self.a, self.b, t - fraction[k])
+            self.delayed_state[k] = self.sensor_output[k] @ phi
+            self.delayed_input[k] = self.sensor_output[k] @ gamma
+        self.delay_s = delay_s
+        self._axis_index = np.arange(N_AXES)
+
+    def _steady_state(self):
+        op = self.operating_point
+        inputs = np.concatenate([op["command"], np.zeros(N_AXES), [1.0]])
+        state = np.linalg.solve(self.a, -self.b @ inputs)
+        if np.max(np.abs(state[self.blocks(2)] - op["q"])) > 1e-9 + 1e-6 * np.max(np.abs(op["q"])):
+            raise ModelError("linearized rig is not at rest at its operating point")
+        controller = []
+        error = self.setpoint_m - self.output_coupling @ (self.sensor_shape @ op["q"])
+        for k, (ac, bc, cc, dc) in enumerate(self.controller_blocks):
+            n = ac.shape[0]
+            if self.integral_action[k]:
+                lhs = np.vstack([np.eye(n) - ac, cc])
+                rhs = np.concatenate([np.zeros(n), [op["command"][k]]])
+                controller.append(np.linalg.lstsq(lhs, rhs, rcond=None)[0])
+            else:
+                controller.append(np.linalg.solve(np.eye(n) - ac, bc[:, 0] * error[k]))
+        return state, np.concatenate(controller), inputs
+
+    # ----------------------------------------------------------- simulation
+    def initial_state(self, batch):
+        """All members at rest at the operating point."""
+        plant, controller, inputs = self._initial
+        sensor = self.delayed_state @ plant + self.delayed_input @ inputs
+        buffer = np.broadcast_to(sensor[None, :, None], (self.buffer_length, N_AXES, batch)).copy()
+        return SimulationState(np.repeat(plant[:, None], batch, axis=1), np.repeat(controller[:, None], batch, axis=1), buffer, 0)
+
+    def residual_force(self, force_current, position):
+        """Force law (eq. 3.6) minus its linearization at the operating point, per axis [N].
+
+        Coil currents cannot reverse: a coil whose current would go negative carries none.
+        """
+        op, bias = self.operating_point, self.true_bias_a[:, None]
+        upper = np.maximum(bias + force_current, 0.0)
+        lower = np.maximum(bias - force_current, 0.0)
+        exact = force(self.actuators, upper, lower, position - self.imperfections.magnetic_center_offset_m[:, None])
+        linear = (
+            op["force"][:, None]
+            + op["current_stiffness"][:, None] * (force_current - op["force_current"][:, None])
+            + op["position_stiffness"][:, None] * (position - op["actuator_position"][:, None])
+        )
+        return exact - linear
+
+    def closed_loop_spectral_radius(self):
+        """Largest |eigenvalue| of the linearized, noise-free closed loop (plant, controllers, delays).
+
+        The one-cycle map is linear in the deviation from the operating point; its
+        matrix is obtained by stepping the unit deviations as one batch.
+        """
+        rest = self.initial_state(1)
+        sizes = [rest.plant.shape[0], rest.controller.shape[0], rest.sensor_buffer[:, :, 0].size]
+        n = sum(sizes)
+        batch = self.initial_state(n + 1)
+        deviation = np.eye(n + 1)[:n]  # last column: no deviation (the reference)
+        batch.plant += deviation[: sizes[0]]
+        batch.controller += deviation[sizes[0] : sizes[0] + sizes[1]]
+        batch.sensor_buffer += deviation[sizes[0] + sizes[1] :].reshape(rest.sensor_buffer.shape[:2] + (n + 1,))
+        self.step(batch, np.zeros((N_AXES, n + 1)), nonlinear=False, quantize=False)
+        after = np.vstack([batch.plant, batch.controller, np.roll(batch.sensor_buffer, -1, axis=0).reshape(-1, n + 1)])
+        one_cycle = after[:, :n] - after[:, n:]
+        return float(np.max(np.abs(np.linalg.eigvals(one_cycle))))
+
+    def step(self, state, excitation_a, rng=None, nonlinear=True, quantize=True):
+        """Advance every member one controller cycle.
+
+        Parameters
+        ----------
+        state : SimulationState
+            Updated in place.
+        excitation_a : array (5, B)
+            E_u added to the controller outputs during this cycle.
+        rng : numpy.random.Generator, optional
+            Noise source; None gives a noise-free (but still quantized) run.
+        nonlinear : bool
+            False simulates the linearized truth (the cross-check reference).
+        quantize : bool
+            False skips the ADC quantization (for the linear analysis only).
+
+        Returns
+        -------
+        channels : array (20, B)
+            U2, V2, I_upper, I_lower of every axis (ALL_AXES order) at this cycle [A, m].
+        """
+        imp = self.imperfections
+        x = state.plant
+        batch = x.shape[1]
+        sensed = state.sensor_buffer[state.step % self.buffer_length]
+        if rng is not None and imp.sensor_noise_m > 0:
+            sensed = sensed + imp.sensor_noise_m * rng.standard_normal((N_AXES, batch))
+        measured = _quantize(sensed, imp.sensor_resolution_m) if quantize else sensed
+        error = self.setpoint_m[:, None] - measured
+        command = self.ctrl_c @ state.controller + self.ctrl_d @ error + excitation_a
+        state.controller = self.ctrl_a @ state.controller + self.ctrl_b @ error
+        outputs = self.state_outputs @ x
+        coil = outputs[:N_AXES] + self.coil_input @ command
+        inputs = np.empty((self.input_matrix.shape[1], batch))
+        inputs[:N_AXES] = command
+        inputs[2 * N_AXES] = 1.0
+        if nonlinear:
+            force_current = outputs[N_AXES : 2 * N_AXES] + self.force_input @ command
+            inputs[N_AXES : 2 * N_AXES] = self.residual_force(force_current, outputs[2 * N_AXES : 3 * N_AXES])
+        else:
+            inputs[N_AXES : 2 * N_AXES] = 0.0
+        # sensor samples that later cycles will read (fractional-step outputs)
+        slots = (state.step + self.delay_steps) % self.buffer_length
+        state.sensor_buffer[slots, self._axis_index] = outputs[3 * N_AXES :] + self.delayed_input @ inputs
+        state.plant = self.transition @ x + self.input_matrix @ inputs
+        state.step += 1
+        bias = self.true_bias_a[:, None]
+        upper, lower = bias + coil + imp.current_offset_a[:, :1], bias - coil + imp.current_offset_a[:, 1:]
+        if rng is not None and imp.current_noise_a > 0:
+            upper = upper + imp.current_noise_a * rng.standard_normal((N_AXES, batch))
+            lower = lower + imp.current_noise_a * rng.standard_normal((N_AXES, batch))
+        if quantize:
+            upper, lower = _quantize(upper, imp.current_resolution_a), _quantize(lower, imp.current_resolution_a)
+        return np.concatenate([command, measured, upper, lower])
+
+    # --------------------------------------------------------- linear model
+    def sampled_frequency_response(self, frequency_hz):
+        """FRF of the linearized truth from U2 samples to sensor samples, (n_f, 5, 5) [m/A].
+
+        ``C_d(z) (zI - Phi)^-1 Gamma_u`` at ``z = exp(j w T)`` including the
+        delays: what the rig measures at small amplitude without noise.
+        """
+        t = self.sample_time_s
+        z = np.exp(2j * np.pi * np.asarray(frequency_hz, dtype=float) * t)
+        gamma = self.input_matrix[:, :N_AXES]
+        out = np.empty((z.size, N_AXES, N_AXES), dtype=complex)
+        identity = np.eye(self.n_states)
+        for k, zk in enumerate(z):
+            resolvent = np.linalg.solve(zk * identity - self.transition, gamma)
+            # the fractional-step output of step j (which also sees u_j) is read d cycles later
+            sample = self.delayed_state @ resolvent + self.delayed_input[:, :N_AXES]
+            out[k] = zk ** (-self.delay_steps[:, None]) * sample
+        return out
+
+
+def _quantize(values, step):
+    return values if step <= 0 else np.rint(values / step) * step
