@@ -144,6 +144,14 @@ class TestClosedLoop:
         assert_allclose(tf["output_sensitivity"], tf["input_sensitivity"], rtol=1e-8)  # equal controllers on all axes
         assert_allclose(tf["input_sensitivity"] @ (np.eye(4) - tf["open_loop"]), np.broadcast_to(np.eye(4), (3, 4, 4)), atol=1e-10)
 
+    def test_zero_order_hold(self):
+        from ambid.loop import zero_order_hold
+
+        f, t = np.array([0.0, 1000.0, 5000.0]), 50e-6
+        hold = zero_order_hold(f, t)
+        assert_allclose(np.abs(hold), np.abs(np.sinc(f * t)))
+        assert_allclose(np.angle(hold), -np.pi * f * t)
+
     @pytest.mark.parametrize("name", ["hs_plant", "demo_plant"])
     def test_default_machines_stable_with_margins(self, name, request):
         rows = stability_summary(request.getfixturevalue(name))

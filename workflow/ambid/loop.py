@@ -20,7 +20,7 @@ import numpy as np
 from .machine import AXIAL_AXIS, RADIAL_AXES
 from .plant import damping_ratio
 
-__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone"]
+__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone", "zero_order_hold"]
 
 ISO_14839_ZONES = ((3.0, "A"), (4.0, "B"), (5.0, "C"))
 
@@ -50,13 +50,23 @@ def _functions(plant_response, controller_response):
     }
 
 
-def transfer_functions(plant, frequency_hz):
+def zero_order_hold(frequency_hz, sample_time_s):
+    """``(1 - exp(-s T)) / (s T)``: the DAC's hold seen by the continuous plant (1 at DC)."""
+    x = 2j * np.pi * np.asarray(frequency_hz, dtype=float) * sample_time_s
+    safe = np.where(x == 0, 1.0, x)
+    return np.where(x == 0, 1.0, (1 - np.exp(-safe)) / safe)
+
+
+def transfer_functions(plant, frequency_hz, hold=False):
     """The transfer functions of thesis Table 4.1 for the radial axes.
 
     Parameters
     ----------
     plant : ambid.plant.Plant
     frequency_hz : array (n_f,)
+    hold : bool
+        Include the zero-order hold of the digital loop in the plant (for margins
+        of the real sampled loop; the identified plant U2 -> V2 contains it too).
 
     Returns
     -------
@@ -65,13 +75,17 @@ def transfer_functions(plant, frequency_hz):
         ``dynamic_compliance``, ``dynamic_stiffness``, ``output_sensitivity``.
     """
     plant_response = plant.radial_frequency_response(frequency_hz)
+    if hold:
+        plant_response = plant_response * zero_order_hold(frequency_hz, plant.machine.sample_time_s)[:, None, None]
     controller = -np.stack([c.frequency_response(frequency_hz) for c in plant.machine.radial_controllers], axis=1)
     return {"plant": plant_response, **_functions(plant_response, controller)}
 
 
-def axial_transfer_functions(plant, frequency_hz):
+def axial_transfer_functions(plant, frequency_hz, hold=False):
     """Table 4.1 for the axial axis; arrays (n_f, 1, 1)."""
     plant_response = plant.axial_frequency_response(frequency_hz)[:, None, None]
+    if hold:
+        plant_response = plant_response * zero_order_hold(frequency_hz, plant.machine.sample_time_s)[:, None, None]
     controller = -plant.machine.axial_controller.frequency_response(frequency_hz)[:, None]
     return {"plant": plant_response, **_functions(plant_response, controller)}
 
@@ -86,6 +100,10 @@ def stability_summary(plant, frequency_hz=None):
         Where to search the sensitivity peak; default 1 Hz to the Nyquist
         frequency of the controller, 4000 log-spaced points.
 
+    The sensitivity includes the zero-order hold of the sampled loop and every
+    effect of the model (delays, low-passes); the eigenvalue check includes the
+    hold but not the non-structural effects.
+
     Returns
     -------
     list of dict
@@ -95,16 +113,20 @@ def stability_summary(plant, frequency_hz=None):
         ``sensitivity_peak_db``, ``sensitivity_peak_hz``, ``iso_14839_zone``.
     """
     machine = plant.machine
+    radial_loop = plant.closed_loop_poles()
     if frequency_hz is None:
         nyquist = 0.5 / machine.sample_time_s
         frequency_hz = np.logspace(0, np.log10(0.999 * nyquist), 4000)
+        # lightly damped closed-loop modes have peaks narrower than any grid: look at them too
+        poles = radial_loop.s_poles
+        damped = np.abs(poles.imag[(poles.imag > 0) & (damping_ratio(poles) < 0.2)]) / (2 * np.pi)
+        frequency_hz = np.unique(np.concatenate([frequency_hz, damped[damped < nyquist]]))
     rows = []
-    radial_loop = plant.closed_loop_poles()
-    radial = transfer_functions(plant, frequency_hz)["input_sensitivity"]
+    radial = transfer_functions(plant, frequency_hz, hold=True)["input_sensitivity"]
     for k, axis in enumerate(RADIAL_AXES):
         rows.append(_row(axis, radial_loop, np.abs(radial[:, k, k]), frequency_hz))
     if machine.axial_electromagnet is not None:
-        axial = axial_transfer_functions(plant, frequency_hz)["input_sensitivity"]
+        axial = axial_transfer_functions(plant, frequency_hz, hold=True)["input_sensitivity"]
         rows.append(_row(AXIAL_AXIS, plant.axial_closed_loop_poles(), np.abs(axial[:, 0, 0]), frequency_hz))
     return rows
 

@@ -229,7 +229,7 @@ class RigModel:
 
         controllers = list(machine.radial_controllers) + [machine.axial_controller]
         self._controller_matrices(controllers)
-        self.operating_point = self._operating_point(controllers)
+        self.operating_point = self._operating_point()
         self._linear_system()
         self._delays(delay_s)
         self._initial = self._steady_state()
@@ -256,7 +256,7 @@ class RigModel:
         """Static force-producing current from a static command (all chains have unit DC gain)."""
         return self.input_coupling @ command_a
 
-    def _operating_point(self, controllers):
+    def _operating_point(self):
         """Static equilibrium: structure at rest under gravity, sensors at the set points.
 
         With integral action the controller drives the measured position to its

@@ -26,9 +26,16 @@ totals = {axis: int((plan.axis == axis).sum()) for axis in settings.axes}
 log.info("rig %s: %d steps (%s), seed %d", rig.name, plan.step.size, totals, snakemake.params.seed)
 
 
+reported = [0.0]
+
+
 def progress(accepted, simulated_s):
-    done = ", ".join(f"{axis} {accepted[axis]}/{totals[axis]}" for axis in settings.axes)
-    log.info("steps accepted: %s (simulated %.2f s)", done, simulated_s)
+    """Log the steps accepted per axis at every further 10 % of the run."""
+    fraction = sum(accepted.values()) / plan.step.size
+    if fraction - reported[0] >= 0.1 or fraction == 1.0:
+        reported[0] = fraction
+        done = ", ".join(f"{axis} {accepted[axis]}/{totals[axis]}" for axis in settings.axes)
+        log.info("steps accepted: %s (simulated %.2f s)", done, simulated_s)
 
 
 records, stats = run_stepped_sine(rig_model, plan, settings, seed=snakemake.params.seed, progress=progress)
