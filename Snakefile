@@ -14,6 +14,7 @@ report: "workflow/report/workflow.rst"
 include: "rules/common.smk"
 include: "rules/model.smk"
 include: "rules/acquire.smk"
+include: "rules/calibrate.smk"
 
 
 rule all:

@@ -24,3 +24,51 @@ rule acquire_identification:
         mem_mb=2000,
     script:
         "../workflow/scripts/acquire_identification.py"
+
+
+rule acquire_calibration:
+    input:
+        machine=machine_model_file,
+        rig=rig_file,
+    output:
+        log="data/{machine}/{run}/calibration.parquet",
+    params:
+        machine_config=machine_config,
+        rig_config=rig_config,
+        settings=config["calibration"],
+        seed=run_seed,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/acquire_calibration_{run}.log",
+    benchmark:
+        "logs/{machine}/acquire_calibration_{run}.benchmark.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+    script:
+        "../workflow/scripts/acquire_calibration.py"
+
+
+rule calibration_sensitivity:
+    # a virtual experiment: the method run with wrong g0, b, theta or a current-sensor offset,
+    # scored against the rig's truth (which is why it lives with the rig rules)
+    input:
+        machine=machine_model_file,
+        rig=rig_file,
+    output:
+        table="results/{machine}/calibration/{run}/sensitivity.tsv",
+    params:
+        machine_config=machine_config,
+        rig_config=rig_config,
+        settings=config["calibration"],
+        seed=run_seed,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/calibration_sensitivity_{run}.log",
+    benchmark:
+        "logs/{machine}/calibration_sensitivity_{run}.benchmark.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+    script:
+        "../workflow/scripts/calibration_sensitivity.py"

@@ -6,6 +6,7 @@ import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
+from ambid.calibration import calibration_settings_from_config
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
 from ambid.machine import machine_from_config
@@ -63,6 +64,7 @@ RIG_CONFIGS = {
     machine: load_rig_config(machine) for machine in {m for (m, _), spec in RUNS.items() if spec["source"] == "rig"}
 }
 IDENTIFICATION_SETTINGS = settings_from_config(config["identification"])
+CALIBRATION_SETTINGS = calibration_settings_from_config(config["calibration"])
 
 
 wildcard_constraints:
@@ -103,17 +105,34 @@ def run_seed(wildcards):
     return RUNS[(wildcards.machine, wildcards.run)].get("seed", 0)
 
 
-def rig_identification_runs():
-    return [(m, r) for (m, r), spec in RUNS.items() if spec["kind"] == "identification" and spec["source"] == "rig"]
+def runs_of(kind, source=None):
+    return [(m, r) for (m, r), spec in RUNS.items() if spec["kind"] == kind and source in (None, spec["source"])]
+
+
+CALIBRATION_OUTPUTS = [
+    "offsets.tsv",
+    "pairs.tsv",
+    "repeatability.tsv",
+    "magnetic_center.tsv",
+    "stiffness.tsv",
+    "operating_point.yaml",
+    "figures/convergence.png",
+]
 
 
 def all_outputs():
     acquired = [
         f"data/{machine}/{run}/identification.{suffix}"
-        for machine, run in rig_identification_runs()
+        for machine, run in runs_of("identification", "rig")
         for suffix in ("parquet", "m")
     ]
-    return acquired + expand(
+    calibration = [
+        f"results/{machine}/calibration/{run}/{name}"
+        for machine, run in runs_of("calibration")
+        for name in CALIBRATION_OUTPUTS
+    ]
+    sensitivity = [f"results/{machine}/calibration/{run}/sensitivity.tsv" for machine, run in runs_of("calibration", "rig")]
+    return acquired + calibration + sensitivity + expand(
         [
             "results/{machine}/model/{variant}/modes.tsv",
             "results/{machine}/model/{variant}/plant_frf.parquet",

@@ -56,6 +56,12 @@ class RadialBearing:
     actuator_position_m: float
     sensor_position_m: float
     electromagnet: ActuatorAxis
+    operating_point: dict = field(default_factory=dict)  # plane -> (position_m, control_current_a)
+
+    def linearize(self, plane):
+        """(ki, kx) of the bearing's x or y axis at its operating point (default: the magnetic center)."""
+        position, current = self.operating_point.get(plane, (0.0, 0.0))
+        return self.electromagnet.linearize(position, current)
 
 
 @dataclass(frozen=True)
@@ -222,6 +228,23 @@ def _electromagnet(spec, path):
         raise error.within(path) from None
 
 
+def _operating_point(radial_cfg, bearing):
+    """Per plane (position relative to the magnetic center, static control current) of one bearing."""
+    points = radial_cfg.get("operating_point") or {}
+    unknown = set(points) - set(RADIAL_AXES)
+    if unknown:
+        raise ConfigError(f"bearings.radial.operating_point.{sorted(unknown)[0]}", f"not a radial axis {list(RADIAL_AXES)}")
+    out = {}
+    for axis, (name, plane) in AXIS_LOCATION.items():
+        if name == bearing and axis in points:
+            spec = points[axis]
+            out[plane] = (float(spec.get("position_m", 0.0)), float(spec.get("control_current_a", 0.0)))
+            gap = radial_cfg["electromagnet"]["nominal_air_gap_m"]
+            if abs(out[plane][0]) >= gap:
+                raise ConfigError(f"bearings.radial.operating_point.{axis}.position_m", f"outside the air gap ({gap} m)")
+    return out
+
+
 def _controller(spec, sample_time_s, path):
     known = {
         "proportional_gain_a_per_m",
@@ -288,7 +311,7 @@ def machine_from_config(config, name=None, source=None):
             for key, z in (("actuator_position_m", actuator), ("sensor_position_m", sensor)):
                 if not 0 <= z <= rotor.length_m:
                     raise ConfigError(f"{path}.{key}", f"{z} m is not on the rotor (0 .. {rotor.length_m:.6g} m)")
-            radial.append(RadialBearing(bearing, actuator, sensor, magnet))
+            radial.append(RadialBearing(bearing, actuator, sensor, magnet, _operating_point(radial_cfg, bearing)))
         axial_magnet = None
         if "axial" in bearings_cfg:
             axial_magnet = _electromagnet(bearings_cfg["axial"]["electromagnet"], "bearings.axial.electromagnet")

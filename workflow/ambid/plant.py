@@ -140,7 +140,7 @@ class Plant:
                 hk = 2 * n_modes + 2 * BEARINGS.index(bearing_name) + (0 if plane == "x" else 1)
                 actuator[hk, k] = -1.0
                 sensor[k, hk] = -1.0
-            current_stiffness[k], position_stiffness[k] = bearing.electromagnet.linearize()
+            current_stiffness[k], position_stiffness[k] = bearing.linearize(plane)
         self.current_stiffness = current_stiffness
         self.position_stiffness = position_stiffness
         self.actuator_shape = actuator  # force / relative-displacement shape of each radial axis

@@ -5,6 +5,7 @@ version) so the same inputs give byte-identical files.
 """
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -12,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from .io import atomic_path  # noqa: E402
 
-__all__ = ["bode_matrix", "bode_siso", "mode_shapes", "save_figure"]
+__all__ = ["bode_matrix", "bode_siso", "mode_shapes", "calibration_convergence", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -100,5 +101,32 @@ def mode_shapes(node_positions_m, shapes, frequency_hz, bearing_positions_m, sen
     axis.set_title(title)
     axis.legend(fontsize=8, ncol=2)
     axis.grid(True, alpha=0.3)
+    figure.tight_layout()
+    return figure
+
+
+def calibration_convergence(offsets, tolerance_m, title):
+    """Position offset x_c per iteration and axis, one line per repetition (thesis Fig. 6.2, Table 6.1).
+
+    Parameters
+    ----------
+    offsets : pandas.DataFrame
+        Columns ``repetition``, ``iteration``, ``axis``, ``offset_m``.
+    tolerance_m : float
+        Drawn as a band.
+    """
+    axes_names = list(dict.fromkeys(offsets["axis"]))
+    figure, axes = plt.subplots(1, len(axes_names), figsize=(3.2 * len(axes_names), 3.4), sharey=True, squeeze=False)
+    for axis, name in zip(axes[0], axes_names):
+        for repetition, group in offsets[offsets["axis"] == name].groupby("repetition"):
+            axis.plot(group["iteration"], group["offset_m"] * 1e6, marker="o", ms=3, lw=1, label=f"rep. {repetition}")
+        axis.axhspan(-tolerance_m * 1e6, tolerance_m * 1e6, color="green", alpha=0.15)
+        axis.set_title(name)
+        axis.set_xlabel("iteration")
+        axis.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        axis.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("offset x_c [um]")
+    axes[0, -1].legend(fontsize=7)
+    figure.suptitle(title)
     figure.tight_layout()
     return figure

@@ -167,16 +167,24 @@ def _zoh(a, b, time_s):
 
 @dataclass
 class SimulationState:
-    """Batched state of the rig and its controllers; trailing axis = batch member."""
+    """Batched state of the rig and its controllers; trailing axis = batch member.
+
+    ``setpoint_m`` and ``bias_a`` (5, B) are what the PLC commands per member: the
+    position set points and the bias currents (the amplifiers deliver them with
+    the rig's bias error).
+    """
 
     plant: np.ndarray  # (n_states, B)
     controller: np.ndarray  # (n_controller_states, B)
     sensor_buffer: np.ndarray  # (buffer_length, 5, B) delayed sensor samples
     step: int
+    setpoint_m: np.ndarray  # (5, B)
+    bias_a: np.ndarray  # (5, B) commanded bias currents
 
     def take(self, members):
         """Keep only the given batch members (compaction of finished ones)."""
-        return SimulationState(self.plant[:, members], self.controller[:, members], self.sensor_buffer[:, :, members], self.step)
+        return SimulationState(self.plant[:, members], self.controller[:, members], self.sensor_buffer[:, :, members],
+                               self.step, self.setpoint_m[:, members], self.bias_a[:, members])
 
 
 class RigModel:
@@ -199,7 +207,8 @@ class RigModel:
         self.plant = plant
         _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
         nominal = [b.electromagnet for b in machine.radial_bearings for _ in (0, 1)] + [machine.axial_electromagnet]
-        self.true_bias_a = np.array([a.bias_current_a for a in nominal]) * (1 + imp.bias_current_error)
+        self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
+        self.true_bias_a = self.nominal_bias_a * (1 + imp.bias_current_error)
         self.actuators = ActuatorAxes.stack(nominal)
         self.rotor_mass_kg = machine.rotor.mass_kg
 
@@ -262,31 +271,53 @@ class RigModel:
         With integral action the controller drives the measured position to its
         set point; without, the static current is ``kp (setpoint - y)``.
         """
+        q, command = self._equilibrium(hold="set_point")
+        imp = self.imperfections
+        current = self._force_current(command)
+        position = self.actuator_shape.T @ q - imp.magnetic_center_offset_m
+        bias = self.true_bias_a[:, None]
+        f0, ki, kx = force_derivatives(self.actuators, bias + current[:, None], bias - current[:, None], position[:, None])
+        if np.any(self.true_bias_a - np.abs(current) <= 0):
+            raise ModelError(f"rig {self.rig.name}: a coil current is negative at the operating point")
+        return dict(q=q, command=command, force_current=current, actuator_position=position + imp.magnetic_center_offset_m,
+                    force=f0[:, 0], current_stiffness=ki[:, 0], position_stiffness=kx[:, 0])
+
+    def _equilibrium(self, hold):
+        """Static structure displacement and control currents.
+
+        ``hold="set_point"``: the sensors read the set points (integral action);
+        ``hold="magnetic_center"``: every actuator sits at its magnetic center.
+        """
         imp, shape = self.imperfections, self.actuator_shape
         scale_q = 1e-6
+        proportional = np.where(self.integral_action, 0.0, self.dc_gain)
 
         def residual(v):
             q, command = v[: self.n_q] * scale_q, v[self.n_q :]
             current = self._force_current(command)
             x = shape.T @ q - imp.magnetic_center_offset_m
-            f = force(self.actuators, self.true_bias_a[:, None] + current[:, None], self.true_bias_a[:, None] - current[:, None], x[:, None])[:, 0]
+            bias = self.true_bias_a[:, None]
+            f = force(self.actuators, bias + current[:, None], bias - current[:, None], x[:, None])[:, 0]
             statics = self.free_stiffness @ q - shape @ f - self.gravity
+            if hold == "magnetic_center":
+                return np.concatenate([statics, x / scale_q])
             sensed = self.output_coupling @ (self.sensor_shape @ q) - self.setpoint_m
-            proportional = np.where(self.integral_action, 0.0, self.dc_gain)
             loop = np.where(self.integral_action, sensed / scale_q, command + proportional * sensed)
             return np.concatenate([statics, loop])
 
         solution = scipy.optimize.root(residual, np.zeros(self.n_q + N_AXES), method="hybr", options={"xtol": 1e-13})
         if not solution.success or np.max(np.abs(residual(solution.x))) > 1e-6:
             raise ModelError(f"rig {self.rig.name}: no static equilibrium found ({solution.message})")
-        q, command = solution.x[: self.n_q] * scale_q, solution.x[self.n_q :]
-        current = self._force_current(command)
-        position = self.actuator_shape.T @ q - imp.magnetic_center_offset_m
-        f0, ki, kx = force_derivatives(self.actuators, self.true_bias_a[:, None] + current[:, None], self.true_bias_a[:, None] - current[:, None], position[:, None])
-        if np.any(self.true_bias_a - np.abs(current) <= 0):
-            raise ModelError(f"rig {self.rig.name}: a coil current is negative at the operating point")
-        return dict(q=q, command=command, force_current=current, actuator_position=position + imp.magnetic_center_offset_m,
-                    force=f0[:, 0], current_stiffness=ki[:, 0], position_stiffness=kx[:, 0])
+        return solution.x[: self.n_q] * scale_q, solution.x[self.n_q :]
+
+    def magnetic_center_sensor_m(self):
+        """The truth the calibration should find: sensor readings with every actuator at its magnetic center [m].
+
+        Differs from ``magnetic_center_offset_m`` (given at the actuators) by the rotor's
+        tilt between non-collocated sensors and actuators and its static sag.
+        """
+        q, _ = self._equilibrium(hold="magnetic_center")
+        return self.output_coupling @ (self.sensor_shape @ q)
 
     # ------------------------------------------------------------ linear part
     def _linear_system(self):
@@ -387,18 +418,28 @@ class RigModel:
 
     # ----------------------------------------------------------- simulation
     def initial_state(self, batch):
-        """All members at rest at the operating point."""
+        """All members at rest at the operating point (set points and bias as configured)."""
         plant, controller, inputs = self._initial
         sensor = self.delayed_state @ plant + self.delayed_input @ inputs
         buffer = np.broadcast_to(sensor[None, :, None], (self.buffer_length, N_AXES, batch)).copy()
-        return SimulationState(np.repeat(plant[:, None], batch, axis=1), np.repeat(controller[:, None], batch, axis=1), buffer, 0)
+        return SimulationState(
+            np.repeat(plant[:, None], batch, axis=1),
+            np.repeat(controller[:, None], batch, axis=1),
+            buffer,
+            0,
+            np.repeat(self.setpoint_m[:, None], batch, axis=1),
+            np.repeat(self.nominal_bias_a[:, None], batch, axis=1),
+        )
 
-    def residual_force(self, force_current, position):
+    def residual_force(self, force_current, position, bias_a=None):
         """Force law (eq. 3.6) minus its linearization at the operating point, per axis [N].
 
-        Coil currents cannot reverse: a coil whose current would go negative carries none.
+        ``bias_a`` (5, B) are the delivered bias currents (default: the operating
+        point's).  Coil currents cannot reverse: a coil whose current would go
+        negative carries none.
         """
-        op, bias = self.operating_point, self.true_bias_a[:, None]
+        op = self.operating_point
+        bias = self.true_bias_a[:, None] if bias_a is None else bias_a
         upper = np.maximum(bias + force_current, 0.0)
         lower = np.maximum(bias - force_current, 0.0)
         exact = force(self.actuators, upper, lower, position - self.imperfections.magnetic_center_offset_m[:, None])
@@ -456,7 +497,7 @@ class RigModel:
         if rng is not None and imp.sensor_noise_m > 0:
             sensed = sensed + imp.sensor_noise_m * rng.standard_normal((N_AXES, batch))
         measured = _quantize(sensed, imp.sensor_resolution_m) if quantize else sensed
-        error = self.setpoint_m[:, None] - measured
+        error = state.setpoint_m - measured
         command = self.ctrl_c @ state.controller + self.ctrl_d @ error + excitation_a
         state.controller = self.ctrl_a @ state.controller + self.ctrl_b @ error
         outputs = self.state_outputs @ x
@@ -464,9 +505,10 @@ class RigModel:
         inputs = np.empty((self.input_matrix.shape[1], batch))
         inputs[:N_AXES] = command
         inputs[2 * N_AXES] = 1.0
+        bias = state.bias_a * (1 + imp.bias_current_error[:, None])  # what the amplifiers deliver
         if nonlinear:
             force_current = outputs[N_AXES : 2 * N_AXES] + self.force_input @ command
-            inputs[N_AXES : 2 * N_AXES] = self.residual_force(force_current, outputs[2 * N_AXES : 3 * N_AXES])
+            inputs[N_AXES : 2 * N_AXES] = self.residual_force(force_current, outputs[2 * N_AXES : 3 * N_AXES], bias)
         else:
             inputs[N_AXES : 2 * N_AXES] = 0.0
         # sensor samples that later cycles will read (fractional-step outputs)
@@ -474,7 +516,6 @@ class RigModel:
         state.sensor_buffer[slots, self._axis_index] = outputs[3 * N_AXES :] + self.delayed_input @ inputs
         state.plant = self.transition @ x + self.input_matrix @ inputs
         state.step += 1
-        bias = self.true_bias_a[:, None]
         upper, lower = bias + coil + imp.current_offset_a[:, :1], bias - coil + imp.current_offset_a[:, 1:]
         if rng is not None and imp.current_noise_a > 0:
             upper = upper + imp.current_noise_a * rng.standard_normal((N_AXES, batch))

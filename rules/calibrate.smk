@@ -1,0 +1,30 @@
+# Stage "calibrate": the magnetic center recomputed from the calibration log alone (thesis ch. 3, 6.1).
+
+
+rule calibrate:
+    input:
+        log="data/{machine}/{run}/calibration.parquet",
+        machine=machine_model_file,
+    output:
+        offsets="results/{machine}/calibration/{run}/offsets.tsv",
+        pairs="results/{machine}/calibration/{run}/pairs.tsv",
+        repeatability="results/{machine}/calibration/{run}/repeatability.tsv",
+        result="results/{machine}/calibration/{run}/magnetic_center.tsv",
+        stiffness="results/{machine}/calibration/{run}/stiffness.tsv",
+        operating_point="results/{machine}/calibration/{run}/operating_point.yaml",
+        convergence=report(
+            "results/{machine}/calibration/{run}/figures/convergence.png",
+            caption="../workflow/report/calibration_convergence.rst",
+            category="Calibration",
+            subcategory="{machine}",
+        ),
+    params:
+        machine_config=machine_config,
+        settings=config["calibration"],
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/calibrate_{run}.log",
+    threads: 1
+    script:
+        "../workflow/scripts/calibrate.py"
