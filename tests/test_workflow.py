@@ -94,6 +94,36 @@ def test_identification_run_is_reproducible(workdir, tmp_path):
     assert "steps accepted: NX" in progress and "Z 100/100" in progress
 
 
+def test_calibration_stage_from_log_to_operating_point(workdir):
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    config["calibration"].update(repetitions=2, average_s=0.3)  # shorter, same code path
+    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    base = "results/demo20/calibration/cal01"
+    result = snakemake(workdir, f"{base}/magnetic_center.tsv", f"{base}/operating_point.yaml")
+    assert result.returncode == 0, result.stderr[-3000:]
+    for name in ("offsets.tsv", "pairs.tsv", "repeatability.tsv", "stiffness.tsv", "figures/convergence.png"):
+        assert (workdir / base / name).exists()
+    assert (workdir / "data/demo20/cal01/calibration.parquet").exists()
+    # the fragment merges into the machine config and the model linearizes there
+    fragment = yaml.safe_load((workdir / base / "operating_point.yaml").read_text())
+    machine = yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text())
+    machine["bearings"]["radial"]["operating_point"] = fragment["bearings"]["radial"]["operating_point"]
+    from ambid.machine import machine_from_config
+    from ambid.plant import Plant
+
+    Plant(machine_from_config(machine))
+    log = (workdir / "logs/demo20/acquire_calibration_cal01.log").read_text()
+    assert "iteration 1, repetition 1: offsets" in log and "(converged)" in log
+
+
+def test_unknown_calibration_setting_is_rejected(workdir):
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    config["calibration"]["tolerance_um"] = 3
+    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake(workdir, "--dry-run")
+    assert result.returncode != 0 and "tolerance_um" in result.stdout + result.stderr
+
+
 def test_unknown_top_level_key_is_rejected(workdir):
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["machnies"] = config["machines"]
