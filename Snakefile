@@ -15,6 +15,7 @@ include: "rules/common.smk"
 include: "rules/model.smk"
 include: "rules/acquire.smk"
 include: "rules/calibrate.smk"
+include: "rules/frf.smk"
 
 
 rule all:

@@ -132,7 +132,12 @@ def all_outputs():
         for name in CALIBRATION_OUTPUTS
     ]
     sensitivity = [f"results/{machine}/calibration/{run}/sensitivity.tsv" for machine, run in runs_of("calibration", "rig")]
-    return acquired + calibration + sensitivity + expand(
+    frfs = [
+        f"results/{machine}/frf/{run}/{name}"
+        for machine, run in runs_of("identification")
+        for name in ("frf.parquet", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png")
+    ]
+    return acquired + calibration + sensitivity + frfs + expand(
         [
             "results/{machine}/model/{variant}/modes.tsv",
             "results/{machine}/model/{variant}/plant_frf.parquet",

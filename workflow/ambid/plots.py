@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from .io import atomic_path  # noqa: E402
 
-__all__ = ["bode_matrix", "bode_siso", "mode_shapes", "calibration_convergence", "save_figure"]
+__all__ = ["bode_matrix", "bode_siso", "bode_measured", "mode_shapes", "calibration_convergence", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -68,6 +68,39 @@ def bode_siso(frequency_hz, values, title, unit="m/A", markers=False):
     for axis in (magnitude_axis, phase_axis):
         axis.grid(True, which="both", alpha=0.3)
     magnitude_axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def bode_measured(channels, title, unit="m/A"):
+    """Measured FRFs with every measurement point marked and a +-2 sigma band (thesis Fig. 6.3, 6.4).
+
+    Parameters
+    ----------
+    channels : list of (label, frequency_hz, values, std)
+        One panel column per channel.
+    """
+    if not channels:  # e.g. a run without the axial axis
+        figure, axis = plt.subplots(figsize=(4, 2))
+        axis.text(0.5, 0.5, "no measurement", ha="center", va="center")
+        axis.set_axis_off()
+        figure.suptitle(title)
+        return figure
+    figure, axes = plt.subplots(2, len(channels), figsize=(3.4 * len(channels) + 0.6, 5.4), sharex="col", squeeze=False)
+    for k, (label, frequency, values, std) in enumerate(channels):
+        magnitude = np.abs(values)
+        axes[0, k].fill_between(frequency, np.maximum(magnitude - 2 * std, magnitude * 1e-3), magnitude + 2 * std, alpha=0.25, lw=0)
+        axes[0, k].semilogy(frequency, magnitude, marker=".", ms=3, lw=0.8)
+        axes[1, k].plot(frequency, np.degrees(np.angle(values)), marker=".", ms=3, lw=0.8)
+        axes[0, k].set_title(label)
+        axes[1, k].set_xlabel("frequency [Hz]")
+        axes[1, k].set_ylim(-190, 190)
+        axes[1, k].set_yticks([-180, -90, 0, 90, 180])
+        for axis in axes[:, k]:
+            axis.grid(True, which="both", alpha=0.3)
+    axes[0, 0].set_ylabel(f"|G| [{unit}]")
+    axes[1, 0].set_ylabel("phase [deg]")
+    figure.suptitle(title)
     figure.tight_layout()
     return figure
 

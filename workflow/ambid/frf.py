@@ -1,0 +1,135 @@
+"""Empirical transfer function estimates from identification logs (thesis eq. 4.1), SISO and MIMO.
+
+SISO, as the thesis: for excitation on axis i, ``G_ji(f) = V2_j / U2_i`` (the
+thesis' ``data_exc_dx(:,7) ./ data_exc_dx(:,3)``).  With the loop closed, the
+controllers feed the excitation back onto every axis, so every U2 moves and
+the SISO ratio of a coupled plant is not its (j, i) element.
+
+MIMO, beyond the thesis: from the four radial excitation runs at the same
+frequency, ``U`` and ``V`` (4 x 4, column k = the run exciting axis k) give
+``P = V U^-1``.  Its reliability is the conditioning of U, reported per
+frequency.
+
+Uncertainty: the logged noise of each Fourier coefficient (independent, zero
+mean) propagates to first order, ``dP = (dV - P dU) U^-1``, giving a standard
+deviation per FRF point that later stages use as fit weights.
+"""
+
+import numpy as np
+import pandas as pd
+
+from .errors import LogError
+from .logs import CHANNELS
+from .machine import ALL_AXES, RADIAL_AXES
+
+__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "frf_table", "channel"]
+
+
+def log_arrays(frame):
+    """Per excited axis: frequencies (n,), coefficients (n, 20) and their noise (n, 20), steps in order."""
+    out = {}
+    index = {name: k for k, name in enumerate(CHANNELS)}
+    for axis, group in frame.groupby("excited_axis", sort=False):
+        group = group.sort_values(["step", "channel"])
+        steps = group["step"].unique()
+        coefficients = np.zeros((steps.size, len(CHANNELS)), dtype=complex)
+        noise = np.zeros((steps.size, len(CHANNELS)))
+        row = np.searchsorted(steps, group["step"].to_numpy())
+        column = group["channel"].map(index).to_numpy()
+        coefficients[row, column] = group["re"].to_numpy() + 1j * group["im"].to_numpy()
+        noise[row, column] = group["noise_std"].to_numpy()
+        frequency = group.groupby("step")["frequency_hz"].first().to_numpy()
+        out[axis] = (frequency, coefficients, noise)
+    return out
+
+
+def _u2(axis):
+    return CHANNELS.index(f"U2_{axis}")
+
+
+def _v2(axis):
+    return CHANNELS.index(f"V2_{axis}")
+
+
+def siso_etfe(arrays):
+    """SISO ETFE of every excited axis to every output axis.
+
+    Returns
+    -------
+    dict
+        ``(output, input) -> (frequency_hz, G, std)``; G [m/A] = V2_output / U2_input
+        of the run exciting ``input``; std from the logged noise,
+        ``|G| sqrt((s_V / |V|)^2 + (s_U / |U|)^2)``.
+    """
+    out = {}
+    for excited, (frequency, coefficients, noise) in arrays.items():
+        u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
+        for output in ALL_AXES:
+            v, sv = coefficients[:, _v2(output)], noise[:, _v2(output)]
+            g = v / u
+            std = np.abs(g) * np.sqrt((sv / np.abs(v)) ** 2 + (su / np.abs(u)) ** 2)
+            out[(output, excited)] = (frequency, g, std)
+    return out
+
+
+def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, source="identification log"):
+    """MIMO ETFE ``P = V U^-1`` from the runs exciting each of ``axes``.
+
+    Returns
+    -------
+    frequency_hz : array (n,)
+    plant : array (n, m, m)
+        Rows outputs, columns inputs, in ``axes`` order [m/A].
+    std : array (n, m, m)
+        First-order standard deviation of each element.
+    condition : array (n,)
+        2-norm condition number of U (large: the runs excite nearly the same direction).
+
+    Raises
+    ------
+    LogError
+        When a run is missing or the runs' frequency grids differ.
+    """
+    missing = [a for a in axes if a not in arrays]
+    if missing:
+        raise LogError(source, f"MIMO estimate needs a run exciting each of {list(axes)}; missing {missing}")
+    frequency = arrays[axes[0]][0]
+    for axis in axes[1:]:
+        other = arrays[axis][0]
+        if other.shape != frequency.shape or np.max(np.abs(other / frequency - 1)) > relative_frequency_tolerance:
+            raise LogError(source, f"the runs exciting {axes[0]} and {axis} are on different frequency grids")
+    inputs = np.stack([arrays[a][1][:, [_u2(b) for b in axes]] for a in axes], axis=2)  # (n, rows=U2 axis, cols=run)
+    outputs = np.stack([arrays[a][1][:, [_v2(b) for b in axes]] for a in axes], axis=2)
+    input_noise = np.stack([arrays[a][2][:, [_u2(b) for b in axes]] for a in axes], axis=2)
+    output_noise = np.stack([arrays[a][2][:, [_v2(b) for b in axes]] for a in axes], axis=2)
+    inverse = np.linalg.inv(inputs)
+    plant = outputs @ inverse
+    # Var dP_ab = sum_k |W_kb|^2 (sV_ak^2 + sum_l |P_al|^2 sU_lk^2),  W = U^-1
+    weight = np.abs(inverse) ** 2
+    variance = np.einsum("nak,nkb->nab", output_noise**2, weight)
+    variance += np.einsum("nal,nlk,nkb->nab", np.abs(plant) ** 2, input_noise**2, weight)
+    return frequency, plant, np.sqrt(variance), np.linalg.cond(inputs)
+
+
+def frf_table(siso, mimo=None, axes=RADIAL_AXES):
+    """Long-format FRF table: ``estimator`` (siso / mimo), ``output``, ``input``, ``frequency_hz``,
+    ``re``, ``im``, ``std`` [m/A], ``condition`` (of U, MIMO only)."""
+    parts = []
+    for (output, input_axis), (frequency, g, std) in siso.items():
+        parts.append(pd.DataFrame({"estimator": "siso", "output": output, "input": input_axis, "frequency_hz": frequency,
+                                   "re": g.real, "im": g.imag, "std": std, "condition": np.nan}))
+    if mimo is not None:
+        frequency, plant, std, condition = mimo
+        for i, output in enumerate(axes):
+            for j, input_axis in enumerate(axes):
+                parts.append(pd.DataFrame({"estimator": "mimo", "output": output, "input": input_axis, "frequency_hz": frequency,
+                                           "re": plant[:, i, j].real, "im": plant[:, i, j].imag, "std": std[:, i, j],
+                                           "condition": condition}))
+    return pd.concat(parts, ignore_index=True)
+
+
+def channel(table, estimator, output, input_axis):
+    """Frequencies, complex values and standard deviations of one channel of an `frf_table`."""
+    rows = table[(table["estimator"] == estimator) & (table["output"] == output) & (table["input"] == input_axis)]
+    rows = rows.sort_values("frequency_hz")
+    return rows["frequency_hz"].to_numpy(), rows["re"].to_numpy() + 1j * rows["im"].to_numpy(), rows["std"].to_numpy()

@@ -1,0 +1,39 @@
+"""Rule `frf`: SISO and MIMO ETFE of one identification run -> FRF Parquet and Bode plots."""
+
+import logging
+import sys
+
+import numpy as np
+
+from ambid.frf import channel, frf_table, log_arrays, mimo_etfe, siso_etfe
+from ambid.io import write_parquet
+from ambid.logs import read_identification_log
+from ambid.machine import RADIAL_AXES
+from ambid.plots import bode_measured, save_figure
+
+sys.stderr = open(snakemake.log[0], "w")
+logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
+log = logging.getLogger("frf")
+
+frame, info = read_identification_log(snakemake.input.log)
+arrays = log_arrays(frame)
+siso = siso_etfe(arrays)
+mimo = mimo_etfe(arrays, source=snakemake.input.log) if all(a in arrays for a in RADIAL_AXES) else None
+table = frf_table(siso, mimo)
+if mimo is not None:
+    condition = mimo[3]
+    log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
+write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A", "im": "m/A", "std": "m/A", "condition": "-"},
+              kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
+                                    "source_log": snakemake.input.log, "estimators": sorted(set(table["estimator"]))})
+title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
+dpi = snakemake.params.dpi
+radial = [a for a in RADIAL_AXES if a in arrays]
+save_figure(bode_measured([(f"{a} (SISO)", *channel(table, "siso", a, a)) for a in radial], f"{title}: radial axes, SISO"),
+            snakemake.output.radial_siso, dpi)
+estimator = "mimo" if mimo is not None else "siso"
+save_figure(bode_measured([(f"{a} ({estimator.upper()})", *channel(table, estimator, a, a)) for a in radial], f"{title}: radial axes, {estimator.upper()}"),
+            snakemake.output.radial_mimo, dpi)
+save_figure(bode_measured([("Z (SISO)", *channel(table, "siso", "Z", "Z"))] if "Z" in arrays else [], f"{title}: axial"),
+            snakemake.output.axial, dpi)
+log.info("FRF written: %d rows", len(table))
