@@ -135,7 +135,7 @@ def all_outputs():
     frfs = [
         f"results/{machine}/frf/{run}/{name}"
         for machine, run in runs_of("identification")
-        for name in ("frf.parquet", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png")
+        for name in ("frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png")
     ]
     return acquired + calibration + sensitivity + frfs + expand(
         [

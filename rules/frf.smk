@@ -6,6 +6,7 @@ rule frf:
         log="data/{machine}/{run}/identification.parquet",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
+        uff="results/{machine}/frf/{run}/frf.uff",
         radial_siso=report(
             "results/{machine}/frf/{run}/figures/radial_siso.png",
             caption="../workflow/report/frf.rst",

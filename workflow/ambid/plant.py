@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
+import scipy.signal
 
 from .effects import split_effects
 from .errors import ModelError
@@ -213,6 +214,24 @@ class Plant:
         m = self.rotor.mass_kg
         return np.array([[0.0, 1.0], [kx / m, 0.0]]), np.array([[0.0], [ki / m]]), np.array([[1.0, 0.0]])
 
+    def to_scipy(self):
+        """The radial structural plant as a ``scipy.signal.StateSpace`` (4 inputs A, 4 outputs m).
+
+        Input- and output-side effects are not included (a delay has no state space);
+        multiply by their `Effect.response` in the frequency domain.
+        """
+        a, b, c = self.radial.state_space()
+        return scipy.signal.StateSpace(a, b, c, np.zeros((c.shape[0], b.shape[1])))
+
+    def channel_zpk(self, output_axis, input_axis):
+        """One SISO channel as ``scipy.signal.ZerosPolesGain`` (its minimal form, see `zeros`)."""
+        poles, residues = self.channel_residues(output_axis, input_axis)
+        zeros = self.zeros(output_axis, input_axis)
+        s = 1j * (1.0 + np.max(np.abs(poles)))  # a point away from poles and zeros fixes the gain
+        value = np.sum(residues / (s - poles))
+        gain = value * np.prod(s - poles) / np.prod(s - zeros)
+        return scipy.signal.ZerosPolesGain(zeros, poles, gain.real)  # real: poles and zeros are conjugate-symmetric
+
     # ------------------------------------------------------- poles and zeros
     def poles(self):
         """Open-loop poles of the radial structural plant [rad/s], and their eigenvectors."""
@@ -241,7 +260,9 @@ class Plant:
         identity = np.zeros((n + 1, n + 1))
         identity[:n, :n] = np.eye(n)
         values = scipy.linalg.eigvals(pencil, identity)
-        values = values[np.isfinite(values)]
+        # the pencil's infinite eigenvalues come out as huge finite numbers: drop them
+        finite = np.isfinite(values) & (np.abs(values) < 1e4 * np.max(np.abs(poles)))
+        values = _conjugate_symmetric(values[finite])
         return values[np.argsort(np.abs(values))]
 
     def channel_residues(self, output_axis, input_axis, relative_tolerance=1e-8):
@@ -316,6 +337,33 @@ class Plant:
     def axial_closed_loop_poles(self):
         a, b, c = self.axial_state_space()
         return _sampled_closed_loop(a, b, c, [self.machine.axial_controller])
+
+
+def _conjugate_symmetric(values, relative_tolerance=1e-7):
+    """Roots of a real polynomial computed in complex arithmetic, made exactly conjugate-symmetric.
+
+    Nearly real roots become real; each complex root is paired with the nearest
+    conjugate of another and both replaced by their mean and its conjugate.
+    """
+    values = np.asarray(values, dtype=complex)
+    out, used = [], np.zeros(values.size, dtype=bool)
+    for k in np.argsort(-np.abs(values.imag)):
+        if used[k]:
+            continue
+        used[k] = True
+        scale = max(abs(values[k]), 1.0)
+        if abs(values[k].imag) <= relative_tolerance * scale:
+            out.append(complex(values[k].real, 0.0))
+            continue
+        candidates = np.flatnonzero(~used)
+        if candidates.size == 0:
+            out.append(values[k])
+            continue
+        j = candidates[np.argmin(np.abs(values[candidates] - np.conj(values[k])))]
+        used[j] = True
+        mean = 0.5 * (values[k] + np.conj(values[j]))
+        out += [mean, np.conj(mean)]
+    return np.array(out)
 
 
 class ClosedLoop(NamedTuple):

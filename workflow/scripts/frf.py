@@ -10,6 +10,7 @@ from ambid.io import write_parquet
 from ambid.logs import read_identification_log
 from ambid.machine import RADIAL_AXES
 from ambid.plots import bode_measured, save_figure
+from ambid.uff import write_uff58
 
 sys.stderr = open(snakemake.log[0], "w")
 logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
@@ -26,6 +27,11 @@ if mimo is not None:
 write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A", "im": "m/A", "std": "m/A", "condition": "-"},
               kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
                                     "source_log": snakemake.input.log, "estimators": sorted(set(table["estimator"]))})
+uff_channels = [(a, a, *channel(table, "siso", a, a)[:2]) for a in ("Z",) if a in arrays]
+estimator_for_uff = "mimo" if mimo is not None else "siso"
+uff_channels += [(o, i, *channel(table, estimator_for_uff, o, i)[:2]) for o in RADIAL_AXES for i in RADIAL_AXES
+                 if (estimator_for_uff == "mimo" or o == i) and i in arrays]
+write_uff58(snakemake.output.uff, uff_channels, description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run} {estimator_for_uff}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
 radial = [a for a in RADIAL_AXES if a in arrays]
