@@ -6,6 +6,8 @@ rule acquire_identification:
     input:
         machine=machine_model_file,
         rig=rig_file,
+    wildcard_constraints:
+        run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/identification.parquet",
         mfile="data/{machine}/{run}/identification.m",
@@ -30,6 +32,8 @@ rule acquire_calibration:
     input:
         machine=machine_model_file,
         rig=rig_file,
+    wildcard_constraints:
+        run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/calibration.parquet",
     params:

@@ -105,6 +105,11 @@ def run_seed(wildcards):
     return RUNS[(wildcards.machine, wildcards.run)].get("seed", 0)
 
 
+def thesis_m_runs():
+    """Runs whose raw log is a user's thesis-style .m file (converted by rule import_thesis_m)."""
+    return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") == "m"]
+
+
 def runs_of(kind, source=None):
     return [(m, r) for (m, r), spec in RUNS.items() if spec["kind"] == kind and source in (None, spec["source"])]
 

@@ -33,3 +33,20 @@ rule frf:
     threads: 1
     script:
         "../workflow/scripts/frf.py"
+
+
+rule import_thesis_m:
+    # a user's thesis-style .m log, parsed by a strict grammar (never evaluated) into the Parquet log
+    input:
+        mfile="data/{machine}/{run}/identification.m",
+    output:
+        log="data/{machine}/{run}/identification.parquet",
+    wildcard_constraints:
+        run="|".join(thesis_m_runs()) or "no_thesis_m_runs",
+    log:
+        "logs/{machine}/import_thesis_m_{run}.log",
+    params:
+        library=LIBRARY_DIGEST,
+    threads: 1
+    script:
+        "../workflow/scripts/import_thesis_m.py"

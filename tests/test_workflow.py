@@ -124,6 +124,33 @@ def test_unknown_calibration_setting_is_rejected(workdir):
     assert result.returncode != 0 and "tolerance_um" in result.stdout + result.stderr
 
 
+def test_real_logs_in_thesis_m_format(workdir):
+    """A user's .m file in data/ (no rig): parsed, never evaluated, and carried to the FRF stage."""
+    import numpy as np
+
+    from ambid.logs import CHANNELS, identification_frame
+    from ambid.mfile import write_thesis_m
+
+    rng = np.random.default_rng(0)
+    steps = [
+        {"excited_axis": axis, "step": k, "frequency_hz": 10.0 + 5 * k, "amplitude_a": 0.5, "attempts": 1,
+         "coefficients": rng.normal(size=len(CHANNELS)) + 1j * rng.normal(size=len(CHANNELS)) + 1.0,
+         "noise_std": np.full(len(CHANNELS), 1e-3)}
+        for axis in ("DX", "DY", "NX", "NY", "Z") for k in range(6)
+    ]
+    run = workdir / "data/demo20/thesis01"
+    run.mkdir(parents=True)
+    write_thesis_m(identification_frame(steps), run / "identification.m")
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    config["machines"]["demo20"]["runs"] = {"thesis01": {"kind": "identification", "source": "data", "format": "m"}}
+    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "rule import_thesis_m" in result.stdout + result.stderr and "acquire_identification" not in result.stdout + result.stderr
+    frame, _ = read_parquet(workdir / "results/demo20/frf/thesis01/frf.parquet", kind="frf")
+    assert set(frame["estimator"]) == {"siso", "mimo"}
+
+
 def test_unknown_top_level_key_is_rejected(workdir):
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["machnies"] = config["machines"]

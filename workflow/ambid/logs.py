@@ -288,17 +288,23 @@ def validate_identification_log(frame, source):
 
     duplicated = frame.duplicated(["excited_axis", "step", "channel"], keep=False).to_numpy()
     _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step)", per_channel=True)
-    groups = frame.groupby(["excited_axis", "step"], sort=False).indices
-    for (axis, step), rows in groups.items():
-        mask = np.zeros(len(frame), dtype=bool)
-        mask[rows] = True
-        absent = [name for name in CHANNELS if name not in set(frame["channel"].iloc[rows])]
-        if absent:
-            raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
-        for name in ("frequency_hz", "amplitude_a", "attempts"):
-            values = frame[name].iloc[rows].unique()
-            if len(values) > 1:
-                raise LogError(source, f"{_where(frame, mask)}: rows disagree on {name} ({', '.join(map(repr, values.tolist()))})")
+    # unknown channels and duplicates are already rejected: a complete step has exactly one row per channel
+    grouped = frame.groupby(["excited_axis", "step"], sort=False)
+    sizes = grouped.size()
+    incomplete = sizes[sizes != len(CHANNELS)]
+    if len(incomplete):
+        axis, step = incomplete.index[0]
+        mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
+        absent = [name for name in CHANNELS if name not in set(frame.loc[mask, "channel"])]
+        raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
+    for name in ("frequency_hz", "amplitude_a", "attempts"):
+        spread = grouped[name].nunique()
+        disagreeing = spread[spread > 1]
+        if len(disagreeing):
+            axis, step = disagreeing.index[0]
+            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
+            values = frame.loc[mask, name].unique()
+            raise LogError(source, f"{_where(frame, mask)}: rows disagree on {name} ({', '.join(map(repr, values.tolist()))})")
 
     for axis in ALL_AXES:
         grid = frame[frame["excited_axis"] == axis].groupby("step")["frequency_hz"].first().sort_index()

@@ -7,16 +7,32 @@ thesis' own layout, so its appendix formula
 ``data_exc_dx(:,7)./data_exc_dx(:,3)/1e6`` gives the DX plant in m/A; positions
 are therefore written in micrometres.  Numbers are written with 17 significant
 digits, so every double round-trips exactly through the text.  The file is
-data for a strict parser, never to be evaluated.
+data for a strict parser, never to be evaluated: `parse_thesis_m` accepts only
+``data_exc_<axis> = [numbers]`` assignments and comments, with a hand-written
+linear-time scanner, and `read_thesis_m` turns such a file back into an
+identification log.
 """
+
+import math
+from pathlib import Path
+from string import ascii_letters
+from typing import NamedTuple
 
 import numpy as np
 
+from .errors import LogError
 from .io import atomic_path
-from .logs import validate_identification_log
+from .logs import CHANNELS, identification_frame, validate_identification_log
 from .machine import ALL_AXES, RADIAL_AXES
 
-__all__ = ["THESIS_COLUMNS", "write_thesis_m", "variable_name"]
+__all__ = [
+    "THESIS_COLUMNS",
+    "write_thesis_m",
+    "variable_name",
+    "MFileParseError",
+    "parse_thesis_m",
+    "read_thesis_m",
+]
 
 _POSITION_SCALE = 1e6  # m -> um, as in the thesis
 
@@ -96,3 +112,525 @@ def write_thesis_m(frame, path, header_lines=()):
         lines += ["", f"{variable_name(axis)} = ["] + _axis_rows(frame, axis) + ["];"]
     with atomic_path(path) as temporary:
         temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------- reading
+class MFileParseError(LogError):
+    """A thesis-style ``.m`` file that is not plain data in the accepted grammar.
+
+    Parameters
+    ----------
+    path : str
+        The file (or ``"<string>"``), also available as ``source``.
+    line, column : int
+        1-based position of the offending character; columns count characters
+        (code points), a tab counting as one.
+    message : str
+        What is wrong there.
+
+    Notes
+    -----
+    ``str(error)`` is ``"{path}:{line}:{column}: {message}"``, the format of
+    compilers and editors, so the position can be jumped to.
+    """
+
+    def __init__(self, path, line, column, message):
+        super().__init__(f"{path}:{line}:{column}", message)
+        self.source = self.path = path
+        self.line = line
+        self.column = column
+
+    def __reduce__(self):
+        return type(self), (self.path, self.line, self.column, self.message)
+
+
+_DIGITS = frozenset("0123456789")
+_NAME_START = frozenset(ascii_letters)
+_NAME_CHARS = _NAME_START | _DIGITS | {"_"}
+_BLANKS = frozenset(" \t")
+_PUNCTUATION = frozenset("=[];,")
+_AFTER_NUMBER = frozenset(" \t,;]%\n")  # plus "\r\n", "..." and the end of the text
+_NON_FINITE = frozenset({"inf", "nan"})
+_VARIABLES = {variable_name(axis): axis for axis in ALL_AXES}
+_HINTS = {
+    "'": "strings and transposes are not allowed",
+    '"': "strings are not allowed",
+    "(": "function calls and indexing are not allowed",
+    ")": "function calls and indexing are not allowed",
+    "{": "cell arrays are not allowed",
+    "}": "cell arrays are not allowed",
+    "\r": "lone carriage return; lines end with \\n or \\r\\n",
+}
+_ARITHMETIC = frozenset("*/\\^&|~<>!@:")
+_COMPLEX_HINT = "a sign after a number only starts the imaginary part of a complex literal re±imi (no spaces)"
+_GRAMMAR = "a thesis .m file holds only data_exc_<axis> = [numbers] assignments and % comments"
+
+
+def _quote(text, limit=40):
+    """``repr`` of ``text``, shortened to about ``limit`` characters (messages stay readable)."""
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + "..."
+
+
+class _Token(NamedTuple):
+    kind: str  # "name", "number", "newline", "eof" or one of "=[];,"
+    value: object  # the name (str), the number (complex) or None
+    line: int
+    column: int
+
+
+class _Scanner:
+    """Linear-time tokenizer: every character is looked at a bounded number of times.
+
+    Comments and ``...`` continuations (with the rest of their line) are
+    skipped; a continuation also swallows its line end, so a row or a
+    statement goes on on the next line.  Numbers are scanned whole, complex
+    literals included, and must be followed by a separator.
+    """
+
+    def __init__(self, text, path):
+        self.text = text
+        self.path = path
+        self.pos = 0
+        self.line = 1
+        self.line_start = 0
+
+    def error(self, message, pos=None):
+        """`MFileParseError` at ``pos`` (default: the current position) of the current line."""
+        pos = self.pos if pos is None else pos
+        return MFileParseError(self.path, self.line, pos - self.line_start + 1, message)
+
+    def tokens(self):
+        """Yield `_Token` s, ending with one ``"eof"``."""
+        text, n = self.text, len(self.text)
+        while self.pos < n:
+            char = text[self.pos]
+            if char in _BLANKS or (char == "\r" and text.startswith("\n", self.pos + 1)):
+                self.pos += 1
+            elif char == "\n":
+                token = self._token("newline", None, 0)
+                self._new_line(self.pos)
+                yield token
+            elif char == "%":
+                self._skip_comment()
+            elif text.startswith("...", self.pos):
+                self._skip_continuation()
+            elif char in _PUNCTUATION:
+                yield self._token(char, None, 1)
+            elif char in _DIGITS or char in "+-.":
+                yield self._number()
+            elif char in _NAME_START:
+                start = self.pos
+                name = self._name()
+                yield _Token("name", name, self.line, start - self.line_start + 1)
+            else:
+                raise self.error(self._unexpected(char))
+        yield self._token("eof", None, 0)
+
+    # -- helpers ------------------------------------------------------------------------
+    def _token(self, kind, value, width):
+        token = _Token(kind, value, self.line, self.pos - self.line_start + 1)
+        self.pos += width
+        return token
+
+    def _new_line(self, newline_pos):
+        self.pos = newline_pos + 1
+        self.line += 1
+        self.line_start = self.pos
+
+    def _end_of_line(self):
+        end = self.text.find("\n", self.pos)
+        return len(self.text) if end < 0 else end
+
+    def _skip_comment(self):
+        end = self._end_of_line()
+        alone = not self.text[self.line_start : self.pos].strip(" \t")
+        if alone and self.text[self.pos : end].rstrip(" \t\r") == "%{":
+            raise self.error("block comments %{ ... %} are not supported; comment each line with %")
+        self.pos = end
+
+    def _skip_continuation(self):
+        end = self._end_of_line()
+        if end == len(self.text):
+            self.pos = end
+        else:
+            self._new_line(end)
+
+    def _skip(self, chars):
+        text, pos = self.text, self.pos
+        while pos < len(text) and text[pos] in chars:
+            pos += 1
+        self.pos = pos
+
+    def _peek(self, offset=0):
+        pos = self.pos + offset
+        return self.text[pos] if pos < len(self.text) else ""
+
+    def _name(self):
+        start = self.pos
+        self._skip(_NAME_CHARS)
+        return self.text[start : self.pos]
+
+    def _unexpected(self, char):
+        if char in _ARITHMETIC:
+            return f"unexpected {char!r}: arithmetic is not allowed, only numeric literals"
+        hint = _HINTS.get(char, _GRAMMAR)
+        return f"unexpected character {char!r}: {hint}"
+
+    # -- numbers ------------------------------------------------------------------------
+    def _number(self):
+        """A real ``[+-]mantissa[e[+-]digits]``, an imaginary ``real i`` or a complex ``real±real i``."""
+        start, line, column = self.pos, self.line, self.pos - self.line_start + 1
+        self._check_sign()
+        real_end = self._real()
+        if self._peek() in ("i", "j"):
+            value = complex(0.0, float(self.text[start:real_end]))
+            self.pos += 1
+        elif self._peek() in ("+", "-"):
+            sign = self.pos
+            self.pos += 1
+            if not self._starts_number():
+                raise self.error(f"arithmetic is not allowed: {_COMPLEX_HINT}", sign)
+            imag_end = self._real()
+            if self._peek() not in ("i", "j"):
+                raise self.error(f"arithmetic is not allowed: {_COMPLEX_HINT}, or separate elements by a blank", sign)
+            value = complex(float(self.text[start:sign]), float(self.text[sign:imag_end]))
+            self.pos += 1
+        else:
+            value = complex(float(self.text[start:real_end]), 0.0)
+        self._check_separator()
+        if not (math.isfinite(value.real) and math.isfinite(value.imag)):
+            message = f"number {_quote(self.text[start:self.pos])} overflows: non-finite data is not allowed"
+            raise MFileParseError(self.path, line, column, message)
+        return _Token("number", value, line, column)
+
+    def _starts_number(self, offset=0):
+        """Whether an unsigned mantissa starts at ``offset``: a digit, or ``.`` then a digit."""
+        char = self._peek(offset)
+        return char in _DIGITS or (char == "." and self._peek(offset + 1) in _DIGITS)
+
+    def _check_sign(self):
+        """A leading sign must be glued to its number: ``-1`` is data, ``- 1`` is arithmetic."""
+        if self._peek() not in ("+", "-") or self._starts_number(1):
+            return
+        sign = self.pos
+        if self._peek(1) in _NAME_START:
+            self.pos += 1
+            name = self._name()
+            self.pos = sign
+            if name.lower() in _NON_FINITE:
+                raise self.error(f"non-finite value {_quote(self._peek() + name)} is not allowed")
+        raise self.error(f"standalone {self._peek()!r}: arithmetic is not allowed, a sign must be glued to its number")
+
+    def _real(self):
+        """Scan ``[+-]digits[.digits][e[+-]digits]`` (either digit run may be empty, not both); return its end."""
+        begin = self.pos
+        if self._peek() in ("+", "-"):
+            self.pos += 1
+        start = self.pos
+        self._skip(_DIGITS)
+        digits = self.pos - start
+        if self._peek() == "." and not self.text.startswith("...", self.pos):
+            self.pos += 1
+            fraction = self.pos
+            self._skip(_DIGITS)
+            digits += self.pos - fraction
+        if not digits:
+            raise self.error("malformed number: expected digits", begin)
+        if self._peek() in ("e", "E"):
+            exponent = self.pos
+            self.pos += 1
+            if self._peek() in ("+", "-"):
+                self.pos += 1
+            first_digit = self.pos
+            self._skip(_DIGITS)
+            if self.pos == first_digit:
+                raise self.error("malformed number: the exponent has no digits", exponent)
+        return self.pos
+
+    def _check_separator(self):
+        char = self._peek()
+        if char == "" or char in _AFTER_NUMBER or self.text.startswith(("\r\n", "..."), self.pos):
+            return
+        if char in _ARITHMETIC or char in ("+", "-"):
+            raise self.error(f"unexpected {char!r} after a number: arithmetic is not allowed")
+        raise self.error(f"unexpected character {char!r} after a number: elements are separated by blanks or commas")
+
+
+class _Matrix(NamedTuple):
+    values: np.ndarray  # complex128, (rows, columns)
+    line: int  # of the variable name
+    column: int
+    positions: list  # per row: [(line, column) of each element]
+
+
+class _Parser:
+    """Recursive-descent parser over `_Scanner` tokens (no recursion is needed: matrices do not nest)."""
+
+    def __init__(self, text, path):
+        self.path = path
+        self.tokens = _Scanner(text, path).tokens()
+        self.token = next(self.tokens)
+
+    def error(self, message, token=None):
+        token = token or self.token
+        return MFileParseError(self.path, token.line, token.column, message)
+
+    def advance(self):
+        """Return the current token and scan the next one (never past the end)."""
+        token = self.token
+        if token.kind != "eof":
+            self.token = next(self.tokens)
+        return token
+
+    def expect(self, kind, what):
+        if self.token.kind != kind:
+            raise self.error(f"expected {what}, found {self._describe(self.token)}")
+        return self.advance()
+
+    @staticmethod
+    def _describe(token):
+        if token.kind == "name":
+            return f"name {_quote(token.value)}"
+        if token.kind == "number":
+            return "a number"
+        if token.kind in ("newline", "eof"):
+            return f"end of {'line' if token.kind == 'newline' else 'file'}"
+        return repr(token.kind)
+
+    def file(self):
+        """file = { blank | comment | assignment }; return name -> `_Matrix` in file order."""
+        matrices = {}
+        while self.token.kind != "eof":
+            if self.token.kind == "newline":
+                self.advance()
+            else:
+                name, matrix = self.assignment(matrices)
+                matrices[name] = matrix
+        return matrices
+
+    def assignment(self, seen):
+        """assignment = NAME "=" matrix [";"] (end of line | end of file)."""
+        token = self.token
+        if token.kind != "name":
+            raise self.error(f"expected an assignment data_exc_<axis> = [...], found {self._describe(token)}")
+        if token.value not in _VARIABLES:
+            known = ", ".join(_VARIABLES)
+            raise self.error(f"only data_exc_* assignments are allowed ({known}), found {_quote(token.value)}")
+        if token.value in seen:
+            first = seen[token.value]
+            raise self.error(f"{token.value} is assigned twice (first at line {first.line})")
+        self.advance()
+        self.expect("=", "'='")
+        values, positions = self.matrix()
+        if self.token.kind == ";":
+            self.advance()
+        if self.token.kind not in ("newline", "eof"):
+            raise self.error(f"expected end of line after the assignment, found {self._describe(self.token)}")
+        return token.value, _Matrix(values, token.line, token.column, positions)
+
+    def matrix(self):
+        """matrix = "[" rows "]"; return the (rows, columns) complex array and element positions."""
+        opening = self.expect("[", "'[' (the value must be a literal matrix)")
+        rows, row, comma = [], [], None
+        while True:
+            token = self.token
+            if token.kind == "number":
+                row.append(token)
+                comma = None
+            elif token.kind == ",":
+                if not row or comma is not None:
+                    raise self.error("empty element: ',' must stand between two elements", token)
+                comma = token
+            elif token.kind in (";", "newline", "]"):
+                if comma is not None:
+                    raise self.error("trailing ',': a row must not end with a comma", comma)
+                self._end_row(rows, row)
+                row = []
+            else:
+                raise self._bad_in_matrix(token, opening)
+            self.advance()  # only now scan on: errors are reported in text order
+            if token.kind == "]":
+                return self._array(rows), [[(t.line, t.column) for t in r] for r in rows]
+
+    def _end_row(self, rows, row):
+        if not row:
+            return  # empty rows (blank lines, ";;", a trailing ";") are ignored
+        if rows and len(row) != len(rows[0]):
+            first = rows[0][0]
+            raise self.error(
+                f"row has {len(row)} column(s), the first row (line {first.line}) has {len(rows[0])}", row[0]
+            )
+        rows.append(row)
+
+    def _bad_in_matrix(self, token, opening):
+        if token.kind == "eof":
+            return self.error("unterminated matrix: this '[' is never closed", opening)
+        if token.kind == "[":
+            return self.error("nested brackets are not allowed", token)
+        if token.kind == "name" and token.value.lower() in _NON_FINITE:
+            return self.error(f"non-finite value {_quote(token.value)} is not allowed", token)
+        if token.kind == "name":
+            return self.error(f"names are not allowed inside a matrix, only numbers: found {_quote(token.value)}", token)
+        return self.error(f"unexpected {self._describe(token)} inside a matrix", token)
+
+    @staticmethod
+    def _array(rows):
+        if not rows:
+            return np.zeros((0, 0), dtype=np.complex128)
+        return np.array([[t.value for t in row] for row in rows], dtype=np.complex128)
+
+
+def _parse(text, path):
+    return _Parser(text, path).file()
+
+
+def parse_thesis_m(text, path="<string>"):
+    """Parse a thesis-style ``.m`` file as data, without evaluating anything.
+
+    Parameters
+    ----------
+    text : str
+        The file's content.
+    path : str, optional
+        Name quoted in errors.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Variable name (``data_exc_dx`` ... ``data_exc_z``) -> complex128 array
+        (rows, columns), in file order; ``[]`` gives a (0, 0) array.
+
+    Raises
+    ------
+    MFileParseError
+        At the first character outside the grammar, with its line and column.
+
+    Notes
+    -----
+    The grammar (a strict subset of MATLAB)::
+
+        file       = { blank line | comment | assignment }
+        comment    = "%" ... end of line        (also after any token)
+        assignment = NAME "=" "[" rows "]" [";"]  end of line
+        rows       = row { (";" | newline) row }  (empty rows are ignored)
+        row        = number { (blanks | [blanks] "," [blanks]) number }
+        number     = real | real ("i"|"j") | real ("+"|"-") ureal ("i"|"j")
+        real       = ["+"|"-"] ureal
+        ureal      = (digits ["." [digits]] | "." digits) [("e"|"E") ["+"|"-"] digits]
+
+    ``NAME`` is one of ``data_exc_dx``, ``_dy``, ``_nx``, ``_ny``, ``_z``, each
+    assigned at most once; ``...`` continues a line (the rest of it is
+    ignored).  As in MATLAB's matrix context a blank separates elements, so
+    ``[1 -2]`` has two elements; a sign followed by a blank (``[1 - 2]``) is
+    arithmetic and refused, as are names (``Inf``, ``NaN``, ``pi``), operators,
+    strings, transposes, calls, nested brackets and ``%{`` block comments.
+    Every row must have as many elements as the first.  Lines end with
+    ``\n`` or ``\r\n``; blanks are spaces and tabs; the imaginary unit is a
+    lowercase ``i`` or ``j`` glued to its number.  The scanner runs in
+    time linear in ``len(text)`` and the parser does not recurse.
+    """
+    return {name: matrix.values for name, matrix in _parse(text, str(path)).items()}
+
+
+def _read_text(path):
+    """UTF-8 text of ``path`` (a leading byte-order mark is dropped)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as error:
+        raise LogError(str(path), f"cannot read the file ({error.strerror or error})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line_start = data.rfind(b"\n", 0, error.start) + 1
+        column = len(data[line_start : error.start].decode("utf-8", errors="replace")) + 1
+        line = data.count(b"\n", 0, error.start) + 1
+        raise MFileParseError(str(path), line, column, f"not UTF-8 text ({error.reason})") from None
+    return text.removeprefix("\ufeff")
+
+
+def _check_thesis_matrix(name, matrix, path):
+    """22 columns, frequency and amplitude real."""
+    n_columns = len(THESIS_COLUMNS)
+    if matrix.values.shape[1] != n_columns:
+        line, column = matrix.positions[0][0]
+        raise MFileParseError(
+            path, line, column, f"{name} has {matrix.values.shape[1]} columns, the thesis layout has {n_columns}"
+        )
+    complex_rows, complex_columns = np.nonzero(matrix.values[:, :2].imag)
+    if complex_rows.size:
+        row, col = int(complex_rows[0]), int(complex_columns[0])
+        line, column = matrix.positions[row][col]
+        value = matrix.values[row, col]
+        message = f"{name} row {row + 1}: column {col + 1} ({THESIS_COLUMNS[col]}) must be real, found {value}"
+        raise MFileParseError(path, line, column, message)
+
+
+def _step_records(axis, values):
+    """`identification_frame` records of one axis' (steps, 22) thesis matrix, back to SI units."""
+    index = {channel: k for k, channel in enumerate(CHANNELS)}
+    order = [index[channel] for channel, _ in _LAYOUT]
+    scale = np.array([scale for _, scale in _LAYOUT])
+    records = []
+    for step, row in enumerate(values):
+        coefficients = np.zeros(len(CHANNELS), dtype=np.complex128)
+        coefficients.real[order] = row[2:].real / scale  # parts divided separately, each correctly rounded
+        coefficients.imag[order] = row[2:].imag / scale
+        records.append(
+            {
+                "excited_axis": axis,
+                "step": step,
+                "frequency_hz": float(row[0].real),
+                "amplitude_a": float(row[1].real),
+                "attempts": 1,
+                "coefficients": coefficients,
+                "noise_std": np.zeros(len(CHANNELS)),
+            }
+        )
+    return records
+
+
+def read_thesis_m(path):
+    """Read a thesis-style ``.m`` file back into an identification log.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file as written by `write_thesis_m` (or by hand in its grammar, see
+        `parse_thesis_m`), UTF-8.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The identification log (`ambid.logs.identification_frame` layout, SI
+        units, positions back from µm to m), validated.
+
+    Raises
+    ------
+    LogError
+        If the file cannot be read, holds no data, or the log breaks the
+        contract of `ambid.logs.validate_identification_log`.
+    MFileParseError
+        If the text is outside the grammar, a matrix does not have the 22
+        `THESIS_COLUMNS` or its frequency or amplitude has an imaginary part;
+        with line and column.
+
+    Notes
+    -----
+    The thesis format carries less than the log: ``step`` is the 0-based row
+    index within the axis' matrix (a log with gaps in its steps comes back
+    renumbered), ``attempts`` is 1 and ``noise_std`` is 0.0 — the format has no
+    noise estimate, and 0.0 (not NaN, which the log contract refuses) marks it
+    absent.  An empty matrix ``[]`` means no steps for that axis.
+    """
+    path = str(path)
+    records = []
+    for name, matrix in _parse(_read_text(path), path).items():
+        if matrix.values.size == 0:
+            continue
+        _check_thesis_matrix(name, matrix, path)
+        records += _step_records(_VARIABLES[name], matrix.values)
+    if not records:
+        raise LogError(path, "no data: the file assigns no non-empty data_exc_* matrix")
+    frame = identification_frame(records)
+    validate_identification_log(frame, path)
+    return frame
