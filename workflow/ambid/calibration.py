@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from .bearing import force
-from .errors import ConfigError, LogError
+from .errors import ConfigError, LogError, settings_from_mapping
 from .io import read_parquet, write_parquet
 from .machine import ALL_AXES, RADIAL_AXES
 
@@ -79,13 +79,7 @@ class CalibrationSettings:
 
 def calibration_settings_from_config(config):
     """`CalibrationSettings` from the ``calibration:`` mapping."""
-    unknown = set(config) - set(CalibrationSettings.__dataclass_fields__)
-    if unknown:
-        raise ConfigError(f"calibration.{sorted(unknown)[0]}", "unknown setting")
-    values = dict(config)
-    if "bias_fractions" in values:
-        values["bias_fractions"] = tuple(values["bias_fractions"])
-    return CalibrationSettings(**values)
+    return settings_from_mapping(CalibrationSettings, config, "calibration")
 
 
 def position_from_pair(upper_1, lower_1, upper_2, lower_2, nominal_air_gap_m, iron_path_m, pole_angle_rad):

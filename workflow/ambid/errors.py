@@ -5,7 +5,7 @@ computation) is raised as an `AmbidError` subclass that names the file, key or
 line at fault, so the workflow fails with a message a machine engineer can act on.
 """
 
-__all__ = ["AmbidError", "ConfigError", "ModelError", "LogError"]
+__all__ = ["AmbidError", "ConfigError", "ModelError", "LogError", "settings_from_mapping"]
 
 
 class AmbidError(Exception):
@@ -59,3 +59,14 @@ class LogError(AmbidError):
         self.message = message
         super().__init__(f"{source}: {message}")
 
+
+
+def settings_from_mapping(cls, mapping, section):
+    """A frozen settings dataclass from a config section; unknown keys raise naming ``section.key``.
+
+    Lists become tuples (the dataclasses are frozen and hashable).
+    """
+    unknown = set(mapping) - set(cls.__dataclass_fields__)
+    if unknown:
+        raise ConfigError(f"{section}.{sorted(unknown)[0]}", "unknown setting")
+    return cls(**{key: tuple(value) if isinstance(value, list) else value for key, value in mapping.items()})

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, settings_from_mapping
 from .loop import axial_transfer_functions, transfer_functions
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
@@ -90,14 +90,7 @@ class SteppedSineSettings:
 
 def settings_from_config(config):
     """`SteppedSineSettings` from the ``identification:`` mapping (unknown keys name themselves)."""
-    fields = SteppedSineSettings.__dataclass_fields__
-    unknown = set(config) - set(fields)
-    if unknown:
-        raise ConfigError(f"identification.{sorted(unknown)[0]}", "unknown setting")
-    values = dict(config)
-    if "axes" in values:
-        values["axes"] = tuple(values["axes"])
-    return SteppedSineSettings(**values)
+    return settings_from_mapping(SteppedSineSettings, config, "identification")
 
 
 def adapt_amplitude(amplitude_a, peak_response_m, settings):
