@@ -43,6 +43,7 @@ crosscheck: $(ROSS_STAMP)
 bench: $(STAMP) $(ROSS_STAMP)
 	$(ROSS_VENV)/bin/python benchmarks/bench_rotor.py
 	$(BIN)/python benchmarks/bench_identification.py
+	$(BIN)/python benchmarks/bench_fit.py
 
 clean:
 	rm -rf results logs .snakemake

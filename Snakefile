@@ -16,6 +16,7 @@ include: "rules/model.smk"
 include: "rules/acquire.smk"
 include: "rules/calibrate.smk"
 include: "rules/frf.smk"
+include: "rules/fit.smk"
 
 
 rule all:

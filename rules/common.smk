@@ -142,7 +142,12 @@ def all_outputs():
         for machine, run in runs_of("identification")
         for name in ("frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png")
     ]
-    return acquired + calibration + sensitivity + frfs + expand(
+    fits = [
+        f"results/{machine}/fit/{run}/{name}"
+        for machine, run in runs_of("identification")
+        for name in ("features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png")
+    ]
+    return acquired + calibration + sensitivity + frfs + fits + expand(
         [
             "results/{machine}/model/{variant}/modes.tsv",
             "results/{machine}/model/{variant}/plant_frf.parquet",

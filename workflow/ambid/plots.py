@@ -13,7 +13,8 @@ import numpy as np  # noqa: E402
 
 from .io import atomic_path  # noqa: E402
 
-__all__ = ["bode_matrix", "bode_siso", "bode_measured", "mode_shapes", "calibration_convergence", "save_figure"]
+__all__ = ["bode_matrix", "bode_siso", "bode_measured", "bode_fit", "stabilization_diagram", "mode_shapes",
+           "calibration_convergence", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -100,6 +101,70 @@ def bode_measured(channels, title, unit="m/A"):
             axis.grid(True, which="both", alpha=0.3)
     axes[0, 0].set_ylabel(f"|G| [{unit}]")
     axes[1, 0].set_ylabel("phase [deg]")
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def bode_fit(channels, title, unit="m/A"):
+    """Measured FRFs (points, +-2 sigma band) with fitted models (lines), one column per channel.
+
+    Parameters
+    ----------
+    channels : list of (label, frequency_hz, measured, std, fitted)
+        ``fitted`` is a dict ``name -> complex array`` (for example the default
+        fit and the thesis' method).
+    """
+    figure, axes = plt.subplots(2, len(channels), figsize=(3.4 * len(channels) + 0.6, 5.4), sharex="col", squeeze=False)
+    for k, (label, frequency, values, std, fitted) in enumerate(channels):
+        magnitude = np.abs(values)
+        axes[0, k].fill_between(frequency, np.maximum(magnitude - 2 * std, magnitude * 1e-3), magnitude + 2 * std,
+                                alpha=0.25, lw=0, color="C0")
+        axes[0, k].semilogy(frequency, magnitude, ".", ms=3, color="C0", label="measured")
+        axes[1, k].plot(frequency, np.degrees(np.angle(values)), ".", ms=3, color="C0")
+        for n, (name, model) in enumerate(fitted.items(), start=1):
+            axes[0, k].semilogy(frequency, np.abs(model), lw=1.0, color=f"C{n}", label=name)
+            axes[1, k].plot(frequency, np.degrees(np.angle(model)), lw=1.0, color=f"C{n}")
+        axes[0, k].set_title(label)
+        axes[1, k].set_xlabel("frequency [Hz]")
+        axes[1, k].set_ylim(-190, 190)
+        axes[1, k].set_yticks([-180, -90, 0, 90, 180])
+        for axis in axes[:, k]:
+            axis.grid(True, which="both", alpha=0.3)
+    axes[0, 0].set_ylabel(f"|G| [{unit}]")
+    axes[1, 0].set_ylabel("phase [deg]")
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def stabilization_diagram(diagrams, selected_hz, band_hz, title):
+    """Stabilization diagrams: pole frequency against model order, one panel per channel.
+
+    Parameters
+    ----------
+    diagrams : dict label -> list of rows (`ambid.fit.stabilization`)
+    selected_hz : dict label -> array of the modes kept [Hz]
+    band_hz : (float, float)
+    """
+    labels = list(diagrams)
+    figure, axes = plt.subplots(len(labels), 1, figsize=(7, 1.6 * len(labels) + 0.8), sharex=True, squeeze=False)
+    styles = {(True, True): ("s", "C2", "stable, physical"), (False, True): ("o", "C0", "physical, not stable"),
+              (True, False): ("x", "C1", "stable, unphysical"), (False, False): (".", "0.6", "other")}
+    for axis, label in zip(axes[:, 0], labels):
+        rows = [r for r in diagrams[label] if band_hz[0] <= r["frequency_hz"] <= band_hz[1]]
+        for (stable, physical), (marker, color, name) in styles.items():
+            pick = [r for r in rows if r["stable"] == stable and r["physical"] == physical]
+            axis.plot([r["frequency_hz"] for r in pick], [r["order"] for r in pick], marker, color=color, ms=4,
+                      ls="none", label=name)
+        for frequency in selected_hz.get(label, []):
+            axis.axvline(frequency, color="C3", lw=0.8, alpha=0.7)
+        axis.set_ylabel(f"{label}\norder")
+        axis.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel("pole frequency [Hz] (red: modes kept)")
+    axes[0, 0].legend(fontsize=7, ncol=4, loc="upper left", bbox_to_anchor=(0, 1.45))
+    axes[0, 0].set_xlim(*band_hz)
     figure.suptitle(title)
     figure.tight_layout()
     return figure

@@ -1,0 +1,127 @@
+"""The default estimator: output-error fit of an AMB plant channel with known truth."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from ambid.channel_fit import (ChannelModel, FitError, fit_channel, known_response, model_from_row, model_rows,
+                               rigid_pole_hz, select_channels)
+from ambid.loop import zero_order_hold
+from ambid.plant import Plant, damping_ratio
+
+F = np.linspace(1.0, 750.0, 250)
+
+
+def truth_channel():
+    """A channel in the default model's structure: rigid +-40 Hz, mode 600 Hz (zeta 0.01), anti-resonance 480 Hz."""
+    w = 2 * np.pi
+    return ChannelModel(gain=-3.0e3, rigid_rad_s=np.array([w * 40.0]), mode_rad_s=np.array([w * 600.0]),
+                        mode_damping=np.array([0.01]), zero_factors=np.array([[2 * 0.008 * w * 480.0, (w * 480.0) ** 2]]),
+                        residual_s2=0.0, delay_s=120e-6)
+
+
+def noisy(g, level, seed):
+    rng = np.random.default_rng(seed)
+    return g * (1 + level * (rng.standard_normal(g.size) + 1j * rng.standard_normal(g.size)) / np.sqrt(2))
+
+
+def feature(fit, kind):
+    return next(r for r in fit.features if r["kind"] == kind and r["number"] == 1)
+
+
+class TestOutputErrorFit:
+    def test_exact_data_recovers_every_parameter(self):
+        truth = truth_channel()
+        fit = fit_channel(F, truth.frequency_response(F), std=0.01 * np.abs(truth.frequency_response(F)))
+        assert_allclose(fit.model.mode_rad_s, truth.mode_rad_s, rtol=1e-7)
+        assert_allclose(fit.model.mode_damping, truth.mode_damping, rtol=1e-5)
+        assert_allclose(fit.model.rigid_rad_s, truth.rigid_rad_s, rtol=1e-6)
+        assert fit.model.delay_s == pytest.approx(120e-6, rel=1e-5)
+        anti = feature(fit, "anti_resonance")
+        assert anti["frequency_hz"] == pytest.approx(480.0, rel=1e-7)
+        assert anti["damping_ratio"] == pytest.approx(0.008, rel=1e-5)
+        assert fit.cost < 1e-6
+
+    def test_unbiased_under_noise_and_its_uncertainty_is_honest(self):
+        truth = truth_channel()
+        g0 = truth.frequency_response(F)
+        errors, stds = [], []
+        for seed in range(20):
+            fit = fit_channel(F, noisy(g0, 0.03, seed), std=0.03 * np.abs(g0))
+            resonance = feature(fit, "resonance")
+            errors.append(resonance["damping_ratio"] / 0.01 - 1)
+            stds.append(resonance["damping_std"] / 0.01)
+            assert fit.cost == pytest.approx(1.0, abs=0.3)  # chi-square per degree of freedom
+        assert abs(np.mean(errors)) < 3 * np.std(errors) / np.sqrt(len(errors)) + 0.003
+        # the reported standard deviation matches the scatter over seeds within 40 %
+        assert np.std(errors) == pytest.approx(np.median(stds), rel=0.4)
+
+    def test_rigid_pairs_are_real_and_never_mirrored(self):
+        truth = truth_channel()
+        fit = fit_channel(F, noisy(truth.frequency_response(F), 0.03, 1), std=0.03 * np.abs(truth.frequency_response(F)))
+        rigid = [r for r in fit.features if r["kind"] == "unstable_rigid"]
+        assert len(rigid) == 1 and rigid[0]["frequency_hz"] == pytest.approx(40.0, rel=0.02)
+        assert not [r for r in fit.features if r["kind"] == "unstable_complex"]
+
+    def test_without_logged_noise_falls_back_to_relative_weights(self):
+        truth = truth_channel()
+        fit = fit_channel(F, noisy(truth.frequency_response(F), 0.03, 2), std=np.zeros(F.size))
+        assert feature(fit, "resonance")["frequency_hz"] == pytest.approx(600.0, rel=2e-4)
+
+    def test_a_known_factor_is_not_fitted(self):
+        truth = truth_channel()
+        hold = zero_order_hold(F, 50e-6)
+        fit = fit_channel(F, truth.frequency_response(F) * hold, std=0.01 * np.abs(truth.frequency_response(F)), known=hold)
+        assert fit.model.delay_s == pytest.approx(120e-6, rel=1e-5)
+
+    @pytest.mark.parametrize("bad", ["nan", "zero", "short"])
+    def test_bad_input_raises_fit_error(self, bad):
+        g = truth_channel().frequency_response(F)
+        f = F
+        if bad == "nan":
+            g = g.copy()
+            g[10] = np.nan
+        elif bad == "zero":
+            g = np.zeros_like(g)
+        else:
+            f, g = F[:5], g[:5]
+        with pytest.raises(FitError):
+            fit_channel(f, g)
+
+    def test_model_round_trips_through_a_table_row_and_scipy(self):
+        truth = truth_channel()
+        fit = fit_channel(F, truth.frequency_response(F), std=0.01 * np.abs(truth.frequency_response(F)))
+        again = model_from_row(model_rows(fit, "DX", "DX"))
+        assert_allclose(again.frequency_response(F), fit.model.frequency_response(F), rtol=1e-9)
+        zpk = fit.model.to_scipy()
+        _, rational = zpk.freqresp(2 * np.pi * F)
+        assert_allclose(rational * np.exp(-2j * np.pi * F * fit.model.delay_s), fit.model.frequency_response(F), rtol=1e-9)
+
+
+class TestOnTheModelPlant:
+    def test_first_mode_and_anti_resonance_of_the_demo_plant(self, demo_config):
+        config = dict(demo_config, effects=[{"name": "delay", "parameters": {"delay_s": 8e-5}}])
+        from ambid.machine import machine_from_config
+
+        plant = Plant(machine_from_config(config))
+        nominal = Plant(machine_from_config(demo_config))
+        g = plant.radial_frequency_response(F)[:, 0, 0] * zero_order_hold(F, plant.machine.sample_time_s)
+        fit = fit_channel(F, g, std=0.01 * np.abs(g), known=known_response(nominal, "DX", "DX", F),
+                          rigid_hint_hz=rigid_pole_hz(nominal))
+        poles, _ = plant.poles()
+        first = poles[poles.imag > 1e-6 * np.abs(poles)]
+        first = first[np.argmin(np.abs(first))]
+        zeros = plant.zeros("DX", "DX")
+        anti = zeros[(zeros.imag > 0) & (np.abs(zeros) < 2 * np.pi * 750)][0]
+        assert feature(fit, "resonance")["frequency_hz"] == pytest.approx(abs(first) / (2 * np.pi), rel=2e-5)
+        assert feature(fit, "resonance")["damping_ratio"] == pytest.approx(damping_ratio(np.array([first]))[0], rel=2e-3)
+        assert feature(fit, "anti_resonance")["frequency_hz"] == pytest.approx(abs(anti) / (2 * np.pi), rel=2e-5)
+        assert fit.model.delay_s == pytest.approx(8e-5, rel=0.02)  # the delay the nominal model lacks
+
+
+def test_channel_sets():
+    assert select_channels("diagonal") == [("DX", "DX"), ("DY", "DY"), ("NX", "NX"), ("NY", "NY")]
+    assert ("NX", "DX") in select_channels("same_plane") and ("NX", "DY") not in select_channels("same_plane")
+    assert len(select_channels("all")) == 16
+    with pytest.raises(FitError, match="fit.channels"):
+        select_channels("everything")

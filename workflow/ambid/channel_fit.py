@@ -1,0 +1,664 @@
+"""Output-error fit of one FRF channel of an AMB plant (the default estimator, beyond thesis ch. 5.1).
+
+The model of a radial channel (excitation current -> sensor position) is::
+
+    G(s) = K  prod_k (s^2 + c1_k s + c0_k) (1 + d s^2)
+              ----------------------------------------------  e^{-s tau}  H(s)
+              prod_r (s^2 - a_r^2) prod_m (s^2 + 2 zeta_m w_m s + w_m^2) (1 + s / w_lp)
+
+* ``s^2 - a_r^2``: the levitated rotor's rigid-body modes, real pole pairs
+  ``+-a`` of the negative-stiffness plant (fixed structure: never merged into a
+  complex pair, never mirrored).
+* ``w_m, zeta_m``: the flexible resonances in the band.
+* ``c1, c0``: anti-resonances (``c0 > 0``) and real zero pairs (``c0 < 0``).
+* ``1 + d s^2``: the residual flexibility of the modes above the band.
+* ``tau`` and ``w_lp``: a delay and a first-order low-pass the model lacks
+  (computation delay, amplifier or sensor bandwidth) put into the model instead
+  of being absorbed by extra poles.
+* ``H(s)``: what is known and not fitted (the zero-order hold, the nominal
+  model's input/output effects).
+
+Starting values come from `ambid.fit.sanathanan_koerner` at the order the
+stabilization diagram selects; pole-zero pairs that cancel to within the noise
+and unstable complex poles are dropped; then the output error
+``(G(jw) - G_meas) / sigma`` is minimized by Levenberg-Marquardt with the
+analytic Jacobian ``dG/dtheta = G dlogG/dtheta``.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.optimize
+import scipy.signal
+
+from .errors import AmbidError
+from .fit import classify_poles, sanathanan_koerner, stabilization
+from .loop import zero_order_hold
+from .machine import RADIAL_AXES
+from .plant import RIGID_MODES, damping_ratio
+
+__all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "select_modes", "known_response", "rigid_pole_hz",
+           "select_channels", "feature_rows", "model_rows", "model_from_row"]
+
+
+class FitError(AmbidError):
+    """A channel cannot be fitted (too little signal, nothing to fit, no convergence)."""
+
+
+@dataclass(frozen=True)
+class ChannelModel:
+    """A fitted channel in physical units (rad/s, s, m/A).
+
+    Attributes
+    ----------
+    gain : float
+        ``K`` [m/A (rad/s)^(2 n_den - 2 n_num)].
+    rigid_rad_s : array (n_r,)
+        ``a_r > 0``: unstable real poles ``+a_r`` and stable ``-a_r``.
+    mode_rad_s, mode_damping : arrays (m,)
+        Natural frequencies and damping ratios of the flexible poles.
+    zero_factors : array (k, 2)
+        ``(c1, c0)`` of each numerator factor ``s^2 + c1 s + c0`` [rad/s, (rad/s)^2].
+    residual_s2 : float
+        ``d`` of ``1 + d s^2`` [s^2].
+    lowpass_rad_s : float
+        Corner of the fitted low-pass (``inf``: none).
+    delay_s : float
+    """
+
+    gain: float
+    rigid_rad_s: np.ndarray
+    mode_rad_s: np.ndarray
+    mode_damping: np.ndarray
+    zero_factors: np.ndarray
+    residual_s2: float = 0.0
+    lowpass_rad_s: float = np.inf
+    delay_s: float = 0.0
+
+    @property
+    def poles(self):
+        """Poles of the rational part [rad/s] (both signs of the rigid pairs, both conjugates)."""
+        w, z = self.mode_rad_s, self.mode_damping
+        flexible = w * (-z + 1j * np.sqrt(np.maximum(1 - z**2, 0.0)))
+        parts = [self.rigid_rad_s, -self.rigid_rad_s, flexible, np.conj(flexible)]
+        if np.isfinite(self.lowpass_rad_s):
+            parts.append([-self.lowpass_rad_s])
+        return np.concatenate([np.asarray(p, dtype=complex) for p in parts])
+
+    @property
+    def zeros(self):
+        """Finite zeros [rad/s], the residual factor's included."""
+        parts = [np.roots([1.0, c1, c0]) for c1, c0 in self.zero_factors]
+        if self.residual_s2 != 0:
+            parts.append(np.roots([self.residual_s2, 0.0, 1.0]))
+        return np.concatenate(parts) if parts else np.array([], dtype=complex)
+
+    def frequency_response(self, frequency_hz, known=None):
+        """``G(j 2 pi f)`` including the delay, times ``known`` when given."""
+        s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
+        g = self.gain * np.exp(-s * self.delay_s) * (1 + self.residual_s2 * s**2)
+        for c1, c0 in self.zero_factors:
+            g = g * (s**2 + c1 * s + c0)
+        for a in self.rigid_rad_s:
+            g = g / (s**2 - a**2)
+        for w, z in zip(self.mode_rad_s, self.mode_damping):
+            g = g / (s**2 + 2 * z * w * s + w**2)
+        if np.isfinite(self.lowpass_rad_s):
+            g = g / (1 + s / self.lowpass_rad_s)
+        return g if known is None else g * known
+
+    def to_scipy(self):
+        """The rational part as `scipy.signal.ZerosPolesGain` (the delay is not rational: see ``delay_s``)."""
+        zeros, poles = self.zeros, self.poles
+        # ZerosPolesGain's gain multiplies monic factors; absorb the non-monic ones
+        gain = self.gain * (self.residual_s2 if self.residual_s2 != 0 else 1.0)
+        if np.isfinite(self.lowpass_rad_s):
+            gain = gain * self.lowpass_rad_s
+        return scipy.signal.ZerosPolesGain(zeros, poles, gain)
+
+
+@dataclass(frozen=True)
+class ChannelFit:
+    """Result of `fit_channel`.
+
+    Attributes
+    ----------
+    model : ChannelModel
+    features : list of dict
+        `ambid.fit.classify_poles` rows of the final model, each with the
+        standard uncertainty ``frequency_std_hz`` and ``damping_std`` from the
+        Jacobian at the optimum (linearized, scaled by the fit's residual).
+    stabilization : list of dict
+        The stabilization diagram the order was chosen from.
+    order : int
+        Denominator order of the starting fit.
+    iterations : int
+        Function evaluations of the refinement.
+    selected_hz : array
+        The flexible modes the stabilization diagram supported [Hz].
+    cost : float
+        Weighted residual norm squared per degree of freedom (about 1 when the
+        model explains the data to within the stated noise).
+    dropped : list of str
+        What was dropped from the starting fit and why.
+    """
+
+    model: ChannelModel
+    features: list
+    stabilization: list
+    order: int
+    cost: float
+    iterations: int
+    dropped: list = field(default_factory=list)
+    selected_hz: np.ndarray = field(default_factory=lambda: np.array([]))
+
+
+# ----------------------------------------------------------------- parameters
+class _Layout:
+    """Scaled parameter vector: x = s / omega (omega: the band's top, rad/s)."""
+
+    def __init__(self, n_rigid, n_modes, n_zero, lowpass, delay):
+        self.n_rigid, self.n_modes, self.n_zero = n_rigid, n_modes, n_zero
+        self.lowpass, self.delay = lowpass, delay
+        self.size = 1 + n_rigid + 2 * n_modes + 2 * n_zero + 1 + int(lowpass) + int(delay)
+
+    def split(self, theta):
+        k = 1
+        parts = {"log_gain": theta[0]}
+        for name, n in (("log_rigid", self.n_rigid), ("log_mode", self.n_modes), ("zeta", self.n_modes),
+                        ("c1", self.n_zero), ("c0", self.n_zero)):
+            parts[name] = theta[k : k + n]
+            k += n
+        parts["d"] = theta[k]
+        k += 1
+        parts["p"] = theta[k] if self.lowpass else 0.0
+        k += int(self.lowpass)
+        parts["t"] = theta[k] if self.delay else 0.0
+        return parts
+
+    def join(self, log_gain, log_rigid, log_mode, zeta, c1, c0, d, p, t):
+        theta = [[log_gain], log_rigid, log_mode, zeta, c1, c0, [d]]
+        if self.lowpass:
+            theta.append([p])
+        if self.delay:
+            theta.append([t])
+        return np.concatenate([np.asarray(v, dtype=float).ravel() for v in theta])
+
+
+def _log_response(theta, layout, x, sign):
+    """``log G`` (up to the known factor) and its derivatives ``d log G / d theta``, (n,) and (n, p)."""
+    q = layout.split(theta)
+    n = x.size
+    x2 = x**2
+    jac = np.empty((n, layout.size), dtype=complex)
+    log_g = np.full(n, q["log_gain"], dtype=complex) + np.log(sign + 0j)
+    jac[:, 0] = 1.0
+    k = 1
+    for log_a in q["log_rigid"]:
+        a2 = np.exp(2 * log_a)
+        factor = x2 - a2
+        log_g -= np.log(factor)
+        jac[:, k] = 2 * a2 / factor
+        k += 1
+    modes = []
+    for log_w, zeta in zip(q["log_mode"], q["zeta"]):
+        w = np.exp(log_w)
+        factor = x2 + 2 * zeta * w * x + w**2
+        log_g -= np.log(factor)
+        modes.append((w, zeta, factor))
+    for w, zeta, factor in modes:
+        jac[:, k] = -(2 * zeta * w * x + 2 * w**2) / factor
+        k += 1
+    for w, zeta, factor in modes:
+        jac[:, k] = -2 * w * x / factor
+        k += 1
+    zero_factors = [x2 + c1 * x + c0 for c1, c0 in zip(q["c1"], q["c0"])]
+    for factor in zero_factors:
+        log_g += np.log(factor)
+        jac[:, k] = x / factor
+        k += 1
+    for factor in zero_factors:
+        jac[:, k] = 1.0 / factor
+        k += 1
+    residual = 1 + q["d"] * x2
+    log_g += np.log(residual)
+    jac[:, k] = x2 / residual
+    k += 1
+    if layout.lowpass:
+        lowpass = 1 + q["p"] * x
+        log_g -= np.log(lowpass)
+        jac[:, k] = -x / lowpass
+        k += 1
+    if layout.delay:
+        log_g -= q["t"] * x
+        jac[:, k] = -x
+    return log_g, jac
+
+
+def _to_model(theta, layout, omega, sign):
+    q = layout.split(theta)
+    n_num = 2 * layout.n_zero
+    n_den = 2 * layout.n_rigid + 2 * layout.n_modes
+    gain = sign * np.exp(q["log_gain"]) * omega ** (n_den - n_num)
+    return ChannelModel(
+        gain=float(gain),
+        rigid_rad_s=omega * np.exp(q["log_rigid"]),
+        mode_rad_s=omega * np.exp(q["log_mode"]),
+        mode_damping=np.array(q["zeta"], dtype=float),
+        zero_factors=np.column_stack([omega * np.asarray(q["c1"]), omega**2 * np.asarray(q["c0"])]).reshape(-1, 2),
+        residual_s2=float(q["d"] / omega**2),
+        lowpass_rad_s=float(omega / q["p"]) if layout.lowpass and q["p"] > 0 else np.inf,
+        delay_s=float(q["t"] / omega) if layout.delay else 0.0,
+    )
+
+
+# ------------------------------------------------------- what the model knows
+def known_response(plant, output_axis, input_axis, frequency_hz):
+    """What a radial channel's measurement contains that the fit need not estimate.
+
+    The digital loop's zero-order hold and the nominal model's own input- and
+    output-side effects of those axes (their diagonal: a low-pass, a delay the
+    model already has).  What the model lacks is left to the fitted delay and
+    low-pass.
+
+    Returns
+    -------
+    complex array (n,)
+    """
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    known = zero_order_hold(frequency_hz, plant.machine.sample_time_s).astype(complex)
+    axes = list(RADIAL_AXES)
+    for effects, axis in ((plant.input_effects, input_axis), (plant.output_effects, output_axis)):
+        for effect in effects:
+            known = known * effect.response(frequency_hz, axes)[:, axes.index(axis), axes.index(axis)]
+    return known
+
+
+def rigid_pole_hz(plant):
+    """Magnitudes of the nominal plant's unstable real poles [Hz], ascending: starting values for merged pairs."""
+    poles, _ = plant.poles()
+    real = poles[(np.abs(poles.imag) <= 1e-6 * np.abs(poles)) & (poles.real > 0)].real / (2 * np.pi)
+    return np.unique(np.round(real, 9))
+
+
+# ------------------------------------------------------------ starting values
+def select_modes(diagram, min_orders=2, frequency_tolerance=0.01):
+    """Flexible modes the stabilization diagram supports.
+
+    A mode is a cluster of *physical* poles (complex, stable, in band) within
+    ``frequency_tolerance`` of each other that appears, stable, at
+    ``min_orders`` or more orders.
+
+    Returns
+    -------
+    array
+        The clusters' median frequencies [Hz], ascending.
+    """
+    rows = sorted((r for r in diagram if r["physical"]), key=lambda r: r["frequency_hz"])
+    clusters, current = [], []
+    for row in rows:
+        if current and row["frequency_hz"] > current[0]["frequency_hz"] * (1 + frequency_tolerance):
+            clusters.append(current)
+            current = []
+        current.append(row)
+    if current:
+        clusters.append(current)
+    modes = []
+    for cluster in clusters:
+        orders = {r["order"] for r in cluster if r["stable"]}
+        if len(orders) >= min_orders:
+            modes.append(float(np.median([r["frequency_hz"] for r in cluster])))
+    return np.array(modes)
+
+
+def _pair_real(values):
+    """Pair real roots into quadratic factors ``(c1, c0)``; an odd one out is dropped."""
+    values = np.sort(np.asarray(values, dtype=float))
+    # pair opposite signs first (the +-a pairs of a levitated rotor), by magnitude
+    factors = []
+    positive, negative = list(values[values >= 0]), list(-values[values < 0][::-1])
+    while positive and negative:
+        p, n = positive.pop(0), negative.pop(0)
+        factors.append((p - n, -p * n))  # (x - p)(x + n)
+    rest = sorted(positive) + sorted(-np.asarray(negative))
+    for k in range(0, len(rest) - 1, 2):
+        factors.append((-(rest[k] + rest[k + 1]), rest[k] * rest[k + 1]))
+    return factors
+
+
+def _cancels(pole, zero, x, tolerance):
+    """Whether the conjugate pairs of ``pole`` and ``zero`` (scaled) change G by less than ``tolerance`` in band."""
+    ratio = (x - zero) * (x - np.conj(zero)) / ((x - pole) * (x - np.conj(pole)))
+    return bool(np.max(np.abs(ratio - 1)) < tolerance)
+
+
+def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz):
+    """Structure and scaled starting values from a linear fit; what was dropped and why.
+
+    Returns rigid magnitudes, flexible poles, numerator factors ``(c1, c0)``,
+    the residual flexibility ``d`` and notes, all in the scaled variable.
+    """
+    dropped = []
+    top = np.max(np.abs(x))
+    hz = omega / (2 * np.pi)
+    poles, zeros = fit.poles / omega, fit.zeros / omega
+    is_real = lambda v: np.abs(v.imag) <= 1e-3 * np.abs(v)  # noqa: E731
+    # rigid: opposite-sign real poles paired by magnitude (the +-a of the negative stiffness);
+    # a pair the channel does not see (cancelled by a real zero pair) is simply not there
+    real_poles = poles[is_real(poles)].real
+    positive = list(np.sort(real_poles[(real_poles > 0) & (real_poles <= top)]))
+    negative = list(np.sort(-real_poles[(real_poles < 0) & (real_poles >= -top)]))
+    rigid = []
+    for p in positive[::-1]:
+        ratios = [abs(n / p - 1) for n in negative]
+        if ratios and min(ratios) < 0.25 and len(rigid) < n_rigid:
+            n = negative.pop(int(np.argmin(ratios)))
+            rigid.append(float(np.sqrt(p * n)))
+    rigid.sort()
+    pairs = len(rigid)
+    if n_rigid and not rigid:
+        hint = np.asarray(rigid_hint_hz if rigid_hint_hz is not None else [0.03 * hz], dtype=float)
+        rigid = [float(hint[0] / hz)]
+        dropped.append(f"the linear fit shows no real pole pair: started the rigid pair at {hint[0]:.1f} Hz")
+    elif pairs < n_rigid:
+        dropped.append(f"{n_rigid - pairs} of {n_rigid} rigid pole pairs not seen by this channel (cancelled by real zeros)")
+    # flexible: the stable complex pole nearest each selected mode
+    candidates = [p for p in poles[(poles.imag > 0) & ~is_real(poles)]]
+    flexible = []
+    for f_hz in mode_hz:
+        stable = [p for p in candidates if p.real < 0]
+        if not stable:
+            break
+        k = int(np.argmin([abs(abs(p) * hz / f_hz - 1) for p in stable]))
+        flexible.append(stable[k])
+        candidates.remove(stable[k])
+    for p in candidates:
+        if abs(p) <= top:
+            kind = "unstable complex pole" if p.real > 0 else "pole not stable in the diagram"
+            dropped.append(f"{kind} at {abs(p) * hz:.2f} Hz")
+    # zeros: a complex zero that cancels a dropped pole goes with it
+    complex_zeros = [z for z in zeros[(zeros.imag > 0) & ~is_real(zeros)]]
+    for p in candidates:
+        partner = min(complex_zeros, key=lambda z: abs(z - p), default=None)
+        if partner is not None and abs(partner - p) < 0.02 * abs(p):
+            complex_zeros.remove(partner)
+    kept = []
+    for p in flexible:
+        partner = min(complex_zeros, key=lambda z: abs(z - p), default=None)
+        if partner is not None and _cancels(p, partner, x, 3 * relative_noise):
+            complex_zeros.remove(partner)
+            dropped.append(f"pole-zero pair cancelling within the noise at {abs(p) * hz:.2f} Hz")
+        else:
+            kept.append(p)
+    # numerator factors in and near the band; far zeros only bend the response: residual flexibility
+    factors, residual = [], 0.0
+    for z in complex_zeros:
+        if abs(z) <= 1.5 * top:
+            factors.append((-2 * z.real, abs(z) ** 2))
+        else:
+            residual += 1.0 / abs(z) ** 2
+    real_zeros = zeros[is_real(zeros)].real
+    for c1, c0 in _pair_real(real_zeros):
+        if abs(c0) <= (1.5 * top) ** 2:
+            factors.append((c1, c0))
+        else:
+            residual += 1.0 / c0
+    return rigid, kept, factors, residual, dropped
+
+
+def _scan_delay(shape, data, weights, x, top_delay):
+    """Scaled delay ``t`` in [0, top_delay] maximizing the weighted correlation of ``shape e^{-x t}`` with the data."""
+    grid = np.linspace(0.0, top_delay, 241)
+    rotated = shape[None, :] * np.exp(-np.outer(grid, x))
+    correlation = np.abs(rotated.conj() @ (weights * data)) ** 2
+    best = int(np.argmax(correlation))
+    return float(grid[best])
+
+
+# ------------------------------------------------------------------- the fit
+def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODES, modes=None, orders=None,
+                lowpass=False, delay=True, rigid_hint_hz=None, max_iterations=200):
+    """Fit one channel of an AMB plant FRF: stabilization, linear start, output-error refinement.
+
+    Parameters
+    ----------
+    frequency_hz, response : arrays (n,)
+        Measured FRF [Hz, m/A].
+    std : array (n,), optional
+        Standard deviation of each point.  Missing or non-positive (a thesis
+        ``.m`` log has none): 3 % of ``|response|``, a relative weighting.
+    known : complex array (n,), optional
+        Known factor of the measured response (zero-order hold, nominal
+        effects); the fitted model is ``G(s) known``.
+    n_rigid : int
+        Rigid-body real pole pairs (2 per plane for a radial channel; 0 for a
+        plant with positive bearing stiffness).
+    modes : int, optional
+        Number of flexible modes in the band (default: chosen from the
+        stabilization diagram).
+    orders : iterable of int, optional
+        Denominator orders of the stabilization diagram (default
+        ``2 n_rigid + 2, ..., 2 n_rigid + 12``).
+    lowpass, delay : bool
+        Fit a first-order low-pass / a delay.
+    rigid_hint_hz : array, optional
+        Starting rigid-pole magnitudes [Hz] should the linear fit merge them
+        (for example from the nominal model).
+
+    Returns
+    -------
+    ChannelFit
+
+    Raises
+    ------
+    FitError
+        On non-finite input, too few points, or no flexible mode where ``modes`` demands one.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    g = np.asarray(response, dtype=complex)
+    if f.ndim != 1 or f.shape != g.shape or f.size < 8:
+        raise FitError(f"need matching 1-D frequency and response arrays with at least 8 points (got {f.shape}, {g.shape})")
+    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(g))):
+        raise FitError("frequency or response contains NaN or inf")
+    if np.all(g == 0):
+        raise FitError("the response is identically zero: nothing to fit")
+    h = np.ones_like(g) if known is None else np.asarray(known, dtype=complex)
+    sigma = None if std is None else np.asarray(std, dtype=float)
+    if sigma is None or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+        sigma = 0.03 * np.maximum(np.abs(g), 1e-6 * np.max(np.abs(g)))
+    relative_noise = float(np.median(sigma / np.maximum(np.abs(g), 1e-300)))
+    omega = 2 * np.pi * np.max(f)
+    x = 1j * f / np.max(f)
+    reduced = g / h
+    reduced_sigma = sigma / np.abs(h)
+    base = 2 * n_rigid
+    orders = list(range(base + 2, base + 13, 2)) if orders is None else list(orders)
+    diagram = stabilization(f, reduced, orders, std=reduced_sigma)
+    dropped = []
+    # the stated noise must explain what even the highest-order linear fit leaves; where it does
+    # not (systematic error: nonlinearity, drift), every sigma is scaled up, so that thresholds and
+    # reported uncertainties follow the real scatter
+    highest = max(orders)
+    scatter = diagram[-1]["residual"] ** 2 / max(f.size - (2 * highest + 1) / 2, 1) if diagram else 1.0
+    inflation = float(np.sqrt(scatter)) if scatter > 2.0 else 1.0
+    if inflation > 1.0:
+        sigma, reduced_sigma = sigma * inflation, reduced_sigma * inflation
+        relative_noise *= inflation
+        dropped.append(f"the stated noise explains 1/{inflation:.1f} of the scatter: sigma scaled by {inflation:.1f}")
+    mode_hz = select_modes(diagram) if modes is None else None
+    if modes is not None:
+        # a fixed number of modes: the most persistent physical clusters
+        ranked = select_modes(diagram, min_orders=1)
+        mode_hz = ranked if ranked.size <= modes else _most_persistent(diagram, ranked, modes)
+        if mode_hz.size < modes:
+            raise FitError(f"asked for {modes} flexible modes; the stabilization diagram shows {mode_hz.size}")
+    # starting fit: the lowest order that shows every selected mode
+    order, start = orders[-1], None
+    for candidate in orders:
+        trial = sanathanan_koerner(f, reduced, candidate, candidate, std=reduced_sigma)
+        found = trial.poles[(trial.poles.imag > 0) & (trial.poles.real < 0)] / (2 * np.pi)
+        if all(np.any(np.abs(np.abs(found) / m - 1) < 0.01) for m in mode_hz):
+            order, start = candidate, trial
+            break
+    if start is None:
+        start = sanathanan_koerner(f, reduced, order, order, std=reduced_sigma)
+    rigid, flexible, factors, residual, notes = _starting_point(start, x, omega, n_rigid, mode_hz, relative_noise,
+                                                                rigid_hint_hz)
+    dropped += notes
+    noise_known = std is not None and np.all(np.asarray(std) > 0)
+    best = _refine(rigid, flexible, factors, residual, x, reduced, reduced_sigma, lowpass, delay, max_iterations)
+    missing = n_rigid - len(rigid)
+    if missing > 0 and rigid_hint_hz is not None and (not noise_known or not _consistent(best)):
+        # the linear fit merged rigid pairs: offer the data the full structure, a hinted pole pair
+        # with a real zero pair next to it (a neutral start), and keep what the criterion prefers
+        hint = sorted(np.asarray(rigid_hint_hz, dtype=float) * 2 * np.pi / omega)
+        extra = [a for a in hint if min(abs(a / r - 1) for r in rigid) > 0.05][:missing]
+        if extra:
+            trial = _refine(rigid + extra, flexible, factors + [(0.0, -(0.9 * a) ** 2) for a in extra], residual, x,
+                            reduced, reduced_sigma, lowpass, delay, max_iterations)
+            if _criterion(trial, noise_known) < _criterion(best, noise_known):
+                best = trial
+                dropped = [d for d in dropped if "rigid pole pairs not seen" not in d]
+    solution, layout, sign = best
+    model = _to_model(solution.x, layout, omega, sign)
+    cost = _cost(best)
+    features = _features(model, solution, layout, omega, cost, (f.min(), f.max()))
+    return ChannelFit(model, features, diagram, order, cost, int(solution.nfev), dropped, np.asarray(mode_hz))
+
+
+def _refine(rigid, flexible, factors, residual, x, data, sigma, lowpass, delay, max_iterations):
+    """Output-error Levenberg-Marquardt from a starting structure (scaled); returns (solution, layout, sign)."""
+    layout = _Layout(len(rigid), len(flexible), len(factors), lowpass, delay)
+    flexible = np.array(flexible, dtype=complex)
+    c = np.array(factors, dtype=float).reshape(-1, 2)
+    theta = layout.join(0.0, np.log(rigid), np.log(np.abs(flexible)), damping_ratio(flexible), c[:, 0], c[:, 1],
+                        residual, 0.0, 0.0)
+    weights = 1 / sigma**2
+    shape = np.exp(_log_response(theta, layout, x, 1.0)[0])
+    if delay:
+        # the linear fit absorbed the delay into far-off poles and zeros, now dropped: recover it
+        theta[-1] = _scan_delay(shape, data, weights, x, top_delay=1.5 * np.pi)
+        shape = np.exp(_log_response(theta, layout, x, 1.0)[0])
+    k0 = np.sum(weights * np.conj(shape) * data).real / np.sum(weights * np.abs(shape) ** 2)
+    if k0 == 0:
+        raise FitError("the starting model is orthogonal to the data")
+    sign = float(np.sign(k0))
+    theta[0] = np.log(abs(k0))
+    # sigma is the standard deviation of the complex value: each of Re and Im has sigma / sqrt(2)
+    component_sigma = sigma / np.sqrt(2)
+
+    def residuals(th):
+        with np.errstate(over="ignore", invalid="ignore"):  # a rejected trial step may overflow
+            r = (np.exp(_log_response(th, layout, x, sign)[0]) - data) / component_sigma
+        r = np.concatenate([r.real, r.imag])
+        return np.where(np.isfinite(r), r, 1e150)
+
+    def jacobian(th):
+        log_g, d = _log_response(th, layout, x, sign)
+        with np.errstate(over="ignore", invalid="ignore"):
+            j = np.exp(log_g)[:, None] * d / component_sigma[:, None]
+        j = np.vstack([j.real, j.imag])
+        return np.where(np.isfinite(j), j, 0.0)
+
+    solution = scipy.optimize.least_squares(residuals, theta, jac=jacobian, method="lm", max_nfev=max_iterations,
+                                            x_scale="jac", ftol=1e-7, xtol=1e-7)
+    if not np.all(np.isfinite(solution.x)):
+        raise FitError("the output-error refinement diverged")
+    return solution, layout, sign
+
+
+def _cost(result):
+    """Weighted residual sum of squares per degree of freedom (about 1 for a right model and right sigma)."""
+    solution, layout, _ = result
+    return float(2 * solution.cost / max(solution.fun.size - layout.size, 1))
+
+
+def _consistent(result):
+    """Whether the residual is what the stated noise explains (chi-square per dof within 3 sigma of 1)."""
+    solution, layout, _ = result
+    dof = max(solution.fun.size - layout.size, 1)
+    return _cost(result) < 1 + 3 * np.sqrt(2 / dof)
+
+
+def _criterion(result, noise_known):
+    """Bayesian information criterion of a refinement (chi-square form when the noise is known)."""
+    solution, layout, _ = result
+    n = solution.fun.size
+    rss = 2 * solution.cost
+    fit_term = rss if noise_known else n * np.log(rss / n)
+    return fit_term + layout.size * np.log(n)
+
+
+def _most_persistent(diagram, candidates_hz, count):
+    counts = [sum(1 for r in diagram if r["physical"] and abs(r["frequency_hz"] / c - 1) < 0.01) for c in candidates_hz]
+    keep = np.sort(np.argsort(counts)[::-1][:count])
+    return candidates_hz[keep]
+
+
+def _features(model, solution, layout, omega, cost, band_hz):
+    """classify_poles rows of the model with linearized standard uncertainties of the flexible modes."""
+    rows = classify_poles(model.poles, model.zeros, band_hz)
+    try:
+        covariance = np.linalg.pinv(solution.jac.T @ solution.jac) * max(cost, 1.0)
+    except np.linalg.LinAlgError:
+        covariance = np.full((layout.size, layout.size), np.nan)
+    q_index = 1 + layout.n_rigid
+    for m, (w, zeta) in enumerate(zip(model.mode_rad_s, model.mode_damping)):
+        i_w, i_z = q_index + m, q_index + layout.n_modes + m
+        for row in rows:
+            if row["root"] == "pole" and abs(row["frequency_hz"] - w / (2 * np.pi)) <= 1e-9 * w:
+                row["frequency_std_hz"] = float(w / (2 * np.pi) * np.sqrt(max(covariance[i_w, i_w], 0.0)))
+                row["damping_std"] = float(np.sqrt(max(covariance[i_z, i_z], 0.0)))
+    return rows
+
+
+# -------------------------------------------------------- a whole FRF table
+CHANNEL_SETS = ("diagonal", "same_plane", "all")
+
+
+def select_channels(kind, axes=RADIAL_AXES):
+    """Radial channels ``(output, input)`` to fit.
+
+    ``diagonal``: each axis to itself; ``same_plane``: outputs and inputs in the
+    same plane (DX, NX / DY, NY; at standstill the planes do not couple);
+    ``all``: the 4 x 4 matrix.
+    """
+    if kind not in CHANNEL_SETS:
+        raise FitError(f"fit.channels must be one of {CHANNEL_SETS}, not {kind!r}")
+    plane = {a: a[-1] for a in axes}
+    return [(o, i) for o in axes for i in axes
+            if kind == "all" or (kind == "same_plane" and plane[o] == plane[i]) or o == i]
+
+
+def feature_rows(channel_fit, output_axis, input_axis, estimator):
+    """The features of one fitted channel as table rows (resonances, anti-resonances, rigid poles, delay)."""
+    rows = []
+    for row in channel_fit.features:
+        if row["kind"] in ("stable_rigid",):
+            continue
+        rows.append({"output": output_axis, "input": input_axis, "estimator": estimator, "root": row["root"],
+                     "kind": row["kind"], "number": row["number"], "frequency_hz": row["frequency_hz"],
+                     "damping_ratio": row["damping_ratio"], "frequency_std_hz": row.get("frequency_std_hz", np.nan),
+                     "damping_std": row.get("damping_std", np.nan)})
+    return rows
+
+
+def model_rows(channel_fit, output_axis, input_axis):
+    """One row per channel: the fitted model's parameters (enough to rebuild `ChannelModel`)."""
+    m = channel_fit.model
+    return {"output": output_axis, "input": input_axis, "gain": m.gain,
+            "rigid_rad_s": " ".join(f"{v:.12g}" for v in m.rigid_rad_s),
+            "mode_rad_s": " ".join(f"{v:.12g}" for v in m.mode_rad_s),
+            "mode_damping": " ".join(f"{v:.12g}" for v in m.mode_damping),
+            "zero_factors": " ".join(f"{c1:.12g},{c0:.12g}" for c1, c0 in m.zero_factors),
+            "residual_s2": m.residual_s2, "lowpass_rad_s": m.lowpass_rad_s, "delay_s": m.delay_s,
+            "order": channel_fit.order, "cost": channel_fit.cost, "dropped": "; ".join(channel_fit.dropped)}
+
+
+def model_from_row(row):
+    """Inverse of `model_rows`: a `ChannelModel` from a stored row (for example of models.parquet)."""
+    numbers = lambda text: np.array([float(v) for v in str(text).split()]) if str(text).strip() else np.array([])  # noqa: E731
+    factors = [tuple(float(v) for v in pair.split(",")) for pair in str(row["zero_factors"]).split()]
+    return ChannelModel(float(row["gain"]), numbers(row["rigid_rad_s"]), numbers(row["mode_rad_s"]),
+                        numbers(row["mode_damping"]), np.array(factors, dtype=float).reshape(-1, 2),
+                        float(row["residual_s2"]), float(row["lowpass_rad_s"]), float(row["delay_s"]))
