@@ -11,8 +11,10 @@ Printed per machine, channel and noise level, for the default estimator
 (`ambid.channel_fit.fit_channel`) and the thesis method as written
 (`ambid.fit.levy_thesis`, n_b = 4, n_a = 6 as in the thesis, and 6 / 8):
 median and p90 of |relative error| of frequency and damping ratio, misses,
-spurious lightly damped in-band poles, unstable complex poles, merged rigid
-pairs, the fit time per channel, and 'bound': 1.645 times the median linearized
+spurious lightly damped in-band poles, unstable complex poles, the share of
+fits with fewer than two unstable rigid poles ('merged'; for the default
+estimator one pair is what a channel shows when a real zero pair cancels the
+other, as the rig's same-axis channels do), the fit time per channel, and 'bound': 1.645 times the median linearized
 standard deviation of the first resonance's damping ratio that the default fit
 reports, i.e. the p90 error an efficient unbiased estimator would reach on
 these data (the Cramer-Rao bound, in %).
