@@ -163,10 +163,11 @@ def stabilization_diagram(diagrams, selected_hz, band_hz, title):
         axis.set_ylabel(f"{label}\norder")
         axis.grid(True, alpha=0.3)
     axes[-1, 0].set_xlabel("pole frequency [Hz] (red: modes kept)")
-    axes[0, 0].legend(fontsize=7, ncol=4, loc="upper left", bbox_to_anchor=(0, 1.45))
     axes[0, 0].set_xlim(*band_hz)
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    figure.legend(handles, names, fontsize=7, ncol=4, loc="lower center")
     figure.suptitle(title)
-    figure.tight_layout()
+    figure.tight_layout(rect=(0, 0.03, 1, 1))
     return figure
 
 
