@@ -116,11 +116,14 @@ def run(machine, seeds):
                     results[label].append((classify_poles(reference.poles, reference.zeros, band), t1 - t0))
             for label, runs in results.items():
                 res_f, res_z, anti_f, anti_z, spurious, unstable, merged, misses = [], [], [], [], [], [], [], 0
+                bound = []
                 for rows, _ in runs:
                     r = nearest(rows, "resonance", resonance)
                     a = nearest(rows, "anti_resonance", anti)
                     misses += (r is None) + (anti is not None and a is None)
                     e = errors(r, resonance)
+                    if r is not None and "damping_std" in r:
+                        bound.append(r["damping_std"] / r["damping_ratio"])
                     res_f.append(e[0])
                     res_z.append(e[1])
                     if anti is not None:
@@ -133,8 +136,6 @@ def run(machine, seeds):
                 ms = 1e3 * np.median([t for _, t in runs])
                 # the p90 of |damping error| an efficient unbiased estimator would reach: 1.645 x the
                 # linearized standard deviation the default fit reports (its Cramer-Rao bound)
-                bound = [x["damping_std"] / x["damping_ratio"] for rows, _ in runs for x in rows
-                         if x is nearest(rows, "resonance", resonance) and "damping_std" in x]
                 bound_text = f"{100 * 1.645 * np.median(bound):6.2f}" if label == "default" and bound else "     -"
                 print(f"{output + '/' + input_axis:8s} {noise:5.2f} {label:14s} {summary(res_f)} {summary(res_z)} "
                       f"{summary(anti_f)} {summary(anti_z)} {misses:4d} {np.mean(spurious):5.2f} {np.mean(unstable):5.2f} "

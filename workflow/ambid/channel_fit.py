@@ -335,8 +335,9 @@ def _cancels(pole, zero, x, tolerance):
 def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz):
     """Structure and scaled starting values from a linear fit; what was dropped and why.
 
-    Returns rigid magnitudes, flexible poles, numerator factors ``(c1, c0)``,
-    the residual flexibility ``d`` and notes, all in the scaled variable.
+    Returns rigid magnitudes, whether they are the hint (the linear fit showed
+    none), flexible poles, numerator factors ``(c1, c0)``, the residual
+    flexibility ``d`` and notes, all in the scaled variable.
     """
     dropped = []
     top = np.max(np.abs(x))
@@ -355,13 +356,11 @@ def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_
             n = negative.pop(int(np.argmin(ratios)))
             rigid.append(float(np.sqrt(p * n)))
     rigid.sort()
-    pairs = len(rigid)
-    if n_rigid and not rigid:
+    from_hint = bool(n_rigid and not rigid)
+    if from_hint:
         hint = np.asarray(rigid_hint_hz if rigid_hint_hz is not None else [0.03 * hz], dtype=float)
         rigid = [float(hint[0] / hz)]
         dropped.append(f"the linear fit shows no real pole pair: started the rigid pair at {hint[0]:.1f} Hz")
-    elif pairs < n_rigid:
-        dropped.append(f"{n_rigid - pairs} of {n_rigid} rigid pole pairs not seen by this channel (cancelled by real zeros)")
     # flexible: the stable complex pole nearest each selected mode
     candidates = [p for p in poles[(poles.imag > 0) & ~is_real(poles)]]
     flexible = []
@@ -403,7 +402,7 @@ def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_
             factors.append((c1, c0))
         else:
             residual += 1.0 / c0
-    return rigid, kept, factors, residual, dropped
+    return rigid, from_hint, kept, factors, residual, dropped
 
 
 def _scan_delay(shape, data, weights, x, top_delay):
@@ -502,8 +501,8 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
             break
     if start is None:
         start = sanathanan_koerner(f, reduced, order, order, std=reduced_sigma)
-    rigid, flexible, factors, residual, notes = _starting_point(start, x, omega, n_rigid, mode_hz, relative_noise,
-                                                                rigid_hint_hz)
+    rigid, rigid_from_hint, flexible, factors, residual, notes = _starting_point(
+        start, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz)
     dropped += notes
     noise_known = std is not None and np.all(np.asarray(std) > 0)
     best = _refine(rigid, flexible, factors, residual, x, reduced, reduced_sigma, lowpass, delay, max_iterations)
@@ -518,8 +517,10 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
                             reduced, reduced_sigma, lowpass, delay, max_iterations)
             if _criterion(trial, noise_known) < _criterion(best, noise_known):
                 best = trial
-                dropped = [d for d in dropped if "rigid pole pairs not seen" not in d]
     solution, layout, sign = best
+    if not rigid_from_hint and layout.n_rigid < n_rigid:
+        dropped.append(f"{n_rigid - layout.n_rigid} of {n_rigid} rigid pole pairs not seen by this channel "
+                       "(cancelled by real zeros)")
     model = _to_model(solution.x, layout, omega, sign)
     cost = _cost(best)
     features = _features(model, solution, layout, omega, cost, (f.min(), f.max()))

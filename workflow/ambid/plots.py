@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from .io import atomic_path  # noqa: E402
 
-__all__ = ["bode_matrix", "bode_siso", "bode_measured", "bode_fit", "stabilization_diagram", "mode_shapes",
+__all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
            "calibration_convergence", "save_figure"]
 
 
@@ -73,13 +73,17 @@ def bode_siso(frequency_hz, values, title, unit="m/A", markers=False):
     return figure
 
 
-def bode_measured(channels, title, unit="m/A"):
+def bode_measured(channels, title, unit="m/A", fits=None):
     """Measured FRFs with every measurement point marked and a +-2 sigma band (thesis Fig. 6.3, 6.4).
 
     Parameters
     ----------
     channels : list of (label, frequency_hz, values, std)
         One panel column per channel.
+    fits : list of dict, optional
+        Per channel, fitted models ``name -> complex array`` on the same
+        frequencies, drawn as lines over the measured points (for example the
+        default fit and the thesis' method).
     """
     if not channels:  # e.g. a run without the axial axis
         figure, axis = plt.subplots(figsize=(4, 2))
@@ -87,42 +91,16 @@ def bode_measured(channels, title, unit="m/A"):
         axis.set_axis_off()
         figure.suptitle(title)
         return figure
+    # with fits overlaid, the measurement is points only so that the lines stand out
+    measured_style = dict(marker=".", ms=3, lw=0.8) if fits is None else dict(marker=".", ms=3, ls="none", color="C0")
     figure, axes = plt.subplots(2, len(channels), figsize=(3.4 * len(channels) + 0.6, 5.4), sharex="col", squeeze=False)
     for k, (label, frequency, values, std) in enumerate(channels):
         magnitude = np.abs(values)
-        axes[0, k].fill_between(frequency, np.maximum(magnitude - 2 * std, magnitude * 1e-3), magnitude + 2 * std, alpha=0.25, lw=0)
-        axes[0, k].semilogy(frequency, magnitude, marker=".", ms=3, lw=0.8)
-        axes[1, k].plot(frequency, np.degrees(np.angle(values)), marker=".", ms=3, lw=0.8)
-        axes[0, k].set_title(label)
-        axes[1, k].set_xlabel("frequency [Hz]")
-        axes[1, k].set_ylim(-190, 190)
-        axes[1, k].set_yticks([-180, -90, 0, 90, 180])
-        for axis in axes[:, k]:
-            axis.grid(True, which="both", alpha=0.3)
-    axes[0, 0].set_ylabel(f"|G| [{unit}]")
-    axes[1, 0].set_ylabel("phase [deg]")
-    figure.suptitle(title)
-    figure.tight_layout()
-    return figure
-
-
-def bode_fit(channels, title, unit="m/A"):
-    """Measured FRFs (points, +-2 sigma band) with fitted models (lines), one column per channel.
-
-    Parameters
-    ----------
-    channels : list of (label, frequency_hz, measured, std, fitted)
-        ``fitted`` is a dict ``name -> complex array`` (for example the default
-        fit and the thesis' method).
-    """
-    figure, axes = plt.subplots(2, len(channels), figsize=(3.4 * len(channels) + 0.6, 5.4), sharex="col", squeeze=False)
-    for k, (label, frequency, values, std, fitted) in enumerate(channels):
-        magnitude = np.abs(values)
         axes[0, k].fill_between(frequency, np.maximum(magnitude - 2 * std, magnitude * 1e-3), magnitude + 2 * std,
                                 alpha=0.25, lw=0, color="C0")
-        axes[0, k].semilogy(frequency, magnitude, ".", ms=3, color="C0", label="measured")
-        axes[1, k].plot(frequency, np.degrees(np.angle(values)), ".", ms=3, color="C0")
-        for n, (name, model) in enumerate(fitted.items(), start=1):
+        axes[0, k].semilogy(frequency, magnitude, label="measured", **measured_style)
+        axes[1, k].plot(frequency, np.degrees(np.angle(values)), **measured_style)
+        for n, (name, model) in enumerate((fits[k] if fits is not None else {}).items(), start=1):
             axes[0, k].semilogy(frequency, np.abs(model), lw=1.0, color=f"C{n}", label=name)
             axes[1, k].plot(frequency, np.degrees(np.angle(model)), lw=1.0, color=f"C{n}")
         axes[0, k].set_title(label)
@@ -133,7 +111,8 @@ def bode_fit(channels, title, unit="m/A"):
             axis.grid(True, which="both", alpha=0.3)
     axes[0, 0].set_ylabel(f"|G| [{unit}]")
     axes[1, 0].set_ylabel("phase [deg]")
-    axes[0, 0].legend(fontsize=7, loc="lower left")
+    if fits is not None:
+        axes[0, 0].legend(fontsize=7, loc="lower left")
     figure.suptitle(title)
     figure.tight_layout()
     return figure

@@ -13,7 +13,7 @@ from ambid.frf import channel
 from ambid.io import read_parquet, write_parquet, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
-from ambid.plots import bode_fit, save_figure, stabilization_diagram
+from ambid.plots import bode_measured, save_figure, stabilization_diagram
 
 sys.stderr = open(snakemake.log[0], "w")
 logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
@@ -26,7 +26,7 @@ table, _ = read_parquet(snakemake.input.frf, kind="frf")
 estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
 hint = rigid_pole_hz(plant)
 numerator_order, denominator_order = settings["thesis_orders"]
-features, models, panels, diagrams, selected = [], [], [], {}, {}
+features, models, panels, fitted, diagrams, selected = [], [], [], [], {}, {}
 for output, input_axis in select_channels(settings["channels"]):
     frequency, measured, std = channel(table, estimator, output, input_axis)
     if frequency.size == 0:
@@ -50,8 +50,9 @@ for output, input_axis in select_channels(settings["channels"]):
             features.append({"output": output, "input": input_axis, "estimator": "thesis", **row,
                              "frequency_std_hz": np.nan, "damping_std": np.nan})
     diagrams[label], selected[label] = result.stabilization, result.selected_hz
-    panels.append((label, frequency, measured, std, {"fit (output error)": result.model.frequency_response(frequency, known),
-                                                     f"thesis {numerator_order}/{denominator_order}": reference.frequency_response(frequency)}))
+    panels.append((label, frequency, measured, std))
+    fitted.append({"fit (output error)": result.model.frequency_response(frequency, known),
+                   f"thesis {numerator_order}/{denominator_order}": reference.frequency_response(frequency)})
 if not models:
     raise FitError(f"{snakemake.input.frf}: no channel of {settings['channels']!r} was measured")
 features = pd.DataFrame(features)
@@ -64,7 +65,7 @@ write_parquet(pd.DataFrame(models), snakemake.output.models, kind="fit_models",
                      "cost": "-"},
               metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run})
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run} ({estimator.upper()} FRF)"
-save_figure(bode_fit(panels, f"{title}: measured and fitted"), snakemake.output.bode, snakemake.params.dpi)
+save_figure(bode_measured(panels, f"{title}: measured and fitted", fits=fitted), snakemake.output.bode, snakemake.params.dpi)
 band = (min(p[1].min() for p in panels), max(p[1].max() for p in panels))
 save_figure(stabilization_diagram(diagrams, selected, band, f"{title}: stabilization diagrams"), snakemake.output.stabilization,
             snakemake.params.dpi)
