@@ -44,6 +44,7 @@ bench: $(STAMP) $(ROSS_STAMP)
 	$(ROSS_VENV)/bin/python benchmarks/bench_rotor.py
 	$(BIN)/python benchmarks/bench_identification.py
 	$(BIN)/python benchmarks/bench_fit.py
+	$(BIN)/python benchmarks/bench_update.py
 
 clean:
 	rm -rf results logs .snakemake

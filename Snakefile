@@ -17,6 +17,7 @@ include: "rules/acquire.smk"
 include: "rules/calibrate.smk"
 include: "rules/frf.smk"
 include: "rules/fit.smk"
+include: "rules/update.smk"
 
 
 rule all:

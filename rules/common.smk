@@ -125,6 +125,19 @@ CALIBRATION_OUTPUTS = [
 ]
 
 
+UPDATE_OUTPUTS = [
+    "comparison.parquet",
+    "comparison.tsv",
+    "variables.tsv",
+    "correlation.tsv",
+    "history.parquet",
+    "machine.yaml",
+    "figures/bode_update.png",
+    "figures/youngs_modulus.png",
+    "figures/convergence.png",
+]
+
+
 def all_outputs():
     acquired = [
         f"data/{machine}/{run}/identification.{suffix}"
@@ -147,7 +160,13 @@ def all_outputs():
         for machine, run in runs_of("identification")
         for name in ("features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png")
     ]
-    return acquired + calibration + sensitivity + frfs + fits + expand(
+    updates = [
+        f"results/{machine}/update/{run}/{name}"
+        for machine, run in runs_of("identification")
+        if config["machines"][machine].get("update")
+        for name in UPDATE_OUTPUTS
+    ]
+    return acquired + calibration + sensitivity + frfs + fits + updates + expand(
         [
             "results/{machine}/model/{variant}/modes.tsv",
             "results/{machine}/model/{variant}/plant_frf.parquet",

@@ -48,13 +48,27 @@ class TestOutputErrorFit:
         errors, stds = [], []
         for seed in range(20):
             fit = fit_channel(F, noisy(g0, 0.03, seed), std=0.03 * np.abs(g0))
-            resonance = feature(fit, "resonance")
-            errors.append(resonance["damping_ratio"] / 0.01 - 1)
-            stds.append(resonance["damping_std"] / 0.01)
+            resonance, anti = feature(fit, "resonance"), feature(fit, "anti_resonance")
+            errors.append([resonance["damping_ratio"] / 0.01 - 1, anti["damping_ratio"] / 0.008 - 1,
+                           anti["frequency_hz"] / 480.0 - 1])
+            stds.append([resonance["damping_std"] / 0.01, anti["damping_std"] / 0.008, anti["frequency_std_hz"] / 480.0])
             assert fit.cost == pytest.approx(1.0, abs=0.3)  # chi-square per degree of freedom
-        assert abs(np.mean(errors)) < 3 * np.std(errors) / np.sqrt(len(errors)) + 0.003
-        # the reported standard deviation matches the scatter over seeds within 40 %
-        assert np.std(errors) == pytest.approx(np.median(stds), rel=0.4)
+        errors, stds = np.array(errors), np.array(stds)
+        assert np.all(np.abs(errors.mean(axis=0)) < 3 * errors.std(axis=0) / np.sqrt(len(errors)) + 0.003)
+        # the reported standard deviations (resonance damping, anti-resonance damping and frequency)
+        # match the scatter over seeds within 40 %
+        assert_allclose(errors.std(axis=0), np.median(stds, axis=0), rtol=0.4)
+
+    def test_modal_constant_is_the_residue_and_its_sign_tells_the_shape(self):
+        truth = truth_channel()
+        (constant,) = truth.modal_constants()
+        pole = truth.poles[np.argmax(truth.poles.imag)]
+        s = pole + 1e-3 * abs(pole) * np.exp(0.3j)  # the residue from a point near the pole
+        g = truth._rational(s)
+        residue = g * (s - pole)
+        assert constant == pytest.approx(np.real(2j * pole.imag * residue), rel=2e-3)
+        flipped = ChannelModel(**{**truth.__dict__, "gain": -truth.gain})
+        assert np.sign(flipped.modal_constants()[0]) == -np.sign(constant)
 
     def test_rigid_pairs_are_real_and_never_mirrored(self):
         truth = truth_channel()

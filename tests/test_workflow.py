@@ -199,3 +199,60 @@ def test_lint_has_only_the_deliberate_finding():
     assert findings == ["* Specify a conda environment or container for each rule.:"] * len(findings)
     rules = sum(text.count("\nrule ") for text in (p.read_text() for p in (ROOT / "rules").glob("*.smk")))
     assert len(findings) <= rules
+
+
+def test_fit_and_update_stages_on_a_user_log(workdir):
+    """A log of the thesis' reference rotor (ch. 5.3) dropped in data/: fit -> update -> an updated machine."""
+    import numpy as np
+
+    from ambid.effects import effect_from_config
+    from ambid.logs import CHANNELS, identification_frame, write_identification_log
+    from ambid.loop import zero_order_hold
+    from ambid.machine import ALL_AXES, RADIAL_AXES, machine_from_config
+    from ambid.plant import Plant
+
+    nominal = machine_from_config(yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text()))
+    scale = {"tag": "design", "scale": [0.5385, 0.4005, 0.2055, 0.0945]}  # 107.7, 80.1, 41.1, 18.9 GPa
+    reference = Plant(nominal.with_effects([effect_from_config({"name": "element_stiffness", "parameters": scale}, "e")]))
+    rng = np.random.default_rng(7)
+    steps = []
+    for axis in ALL_AXES:
+        grid = nominal.axial_grid if axis == "Z" else nominal.radial_grid
+        frequency = grid.frequency_hz
+        hold = zero_order_hold(frequency, nominal.sample_time_s)
+        if axis == "Z":
+            response = {"Z": reference.axial_frequency_response(frequency) * hold}
+        else:
+            matrix = reference.radial_frequency_response(frequency) * hold[:, None, None]
+            response = {out: matrix[:, k, RADIAL_AXES.index(axis)] for k, out in enumerate(RADIAL_AXES)}
+        for k, f in enumerate(frequency):
+            coefficients = np.zeros(len(CHANNELS), dtype=complex)
+            coefficients[CHANNELS.index(f"U2_{axis}")] = 1.0
+            for out, values in response.items():
+                coefficients[CHANNELS.index(f"V2_{out}")] = values[k] * (1 + 1e-4 * rng.standard_normal())
+            coefficients[CHANNELS.index(f"I_upper_{axis}")] = coefficients[CHANNELS.index(f"I_lower_{axis}")] = 0.5
+            noise = np.abs(coefficients) * 1e-4 + 1e-12
+            steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 1.0, "attempts": 1,
+                          "coefficients": coefficients, "noise_std": noise})
+    run = workdir / "data/demo20/user01"
+    run.mkdir(parents=True)
+    write_identification_log(identification_frame(steps), run / "identification.parquet")
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    config["machines"] = {"demo20": {**config["machines"]["demo20"], "runs": {"user01": {"kind": "identification",
+                                                                                       "source": "data"}}}}
+    config["update"]["starts"] = 3
+    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    base = workdir / "results/demo20/update/user01"
+    result = snakemake(workdir, str(base.relative_to(workdir) / "comparison.tsv"))
+    assert result.returncode == 0, result.stderr[-3000:]
+    comparison, info = read_parquet(base / "comparison.parquet", kind="update_comparison")
+    frequency = comparison[comparison["quantity"] == "frequency"]
+    assert frequency["original_error_pct"].min() > 10  # nominal 706 Hz against the reference's 455 Hz
+    assert frequency["error_pct"].max() < 0.05
+    variables = (base / "variables.tsv").read_text()
+    assert "resolution" in variables and "False" in variables  # one mode cannot determine four moduli: flagged
+    updated = yaml.safe_load((base / "machine.yaml").read_text())
+    assert any(e["name"] == "element_stiffness" for e in updated["effects"])
+    machine_from_config(updated)
+    for figure in ("bode_update", "youngs_modulus", "convergence"):
+        assert (base / f"figures/{figure}.png").stat().st_size > 10_000

@@ -96,16 +96,37 @@ class ChannelModel:
     def frequency_response(self, frequency_hz, known=None):
         """``G(j 2 pi f)`` including the delay, times ``known`` when given."""
         s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
-        g = self.gain * np.exp(-s * self.delay_s) * (1 + self.residual_s2 * s**2)
+        g = np.exp(-s * self.delay_s) * self._rational(s)
+        return g if known is None else g * known
+
+    def _rational(self, s, skip_mode=None):
+        """The rational part at complex ``s``, without the factor of flexible mode ``skip_mode``."""
+        g = self.gain * (1 + self.residual_s2 * s**2)
         for c1, c0 in self.zero_factors:
             g = g * (s**2 + c1 * s + c0)
         for a in self.rigid_rad_s:
             g = g / (s**2 - a**2)
-        for w, z in zip(self.mode_rad_s, self.mode_damping):
-            g = g / (s**2 + 2 * z * w * s + w**2)
+        for m, (w, z) in enumerate(zip(self.mode_rad_s, self.mode_damping)):
+            if m != skip_mode:
+                g = g / (s**2 + 2 * z * w * s + w**2)
         if np.isfinite(self.lowpass_rad_s):
             g = g / (1 + s / self.lowpass_rad_s)
-        return g if known is None else g * known
+        return g
+
+    def modal_constants(self):
+        """``Re(2 j Im(p) r)`` of each flexible pole ``p`` (Im p > 0) with residue ``r`` of the rational part.
+
+        For a lightly damped mode this is the product of the mode shape at
+        the sensor and at the actuator (times the current gain): its sign
+        tells modes apart in a cross channel, the model update uses it to
+        match modes (`ambid.modal_features`).
+        """
+        out = np.empty(self.mode_rad_s.size)
+        for m, (w, z) in enumerate(zip(self.mode_rad_s, self.mode_damping)):
+            pole = w * (-z + 1j * np.sqrt(max(1 - z**2, 0.0)))
+            residue = self._rational(pole, skip_mode=m) / (pole - np.conj(pole))
+            out[m] = np.real(2j * pole.imag * residue)
+        return out
 
     def to_scipy(self):
         """The rational part as `scipy.signal.ZerosPolesGain` (the delay is not rational: see ``delay_s``)."""
@@ -604,12 +625,28 @@ def _features(model, solution, layout, omega, cost, band_hz):
     except np.linalg.LinAlgError:
         covariance = np.full((layout.size, layout.size), np.nan)
     q_index = 1 + layout.n_rigid
-    for m, (w, zeta) in enumerate(zip(model.mode_rad_s, model.mode_damping)):
+    for m, (w, zeta, constant) in enumerate(zip(model.mode_rad_s, model.mode_damping, model.modal_constants())):
         i_w, i_z = q_index + m, q_index + layout.n_modes + m
         for row in rows:
             if row["root"] == "pole" and abs(row["frequency_hz"] - w / (2 * np.pi)) <= 1e-9 * w:
                 row["frequency_std_hz"] = float(w / (2 * np.pi) * np.sqrt(max(covariance[i_w, i_w], 0.0)))
                 row["damping_std"] = float(np.sqrt(max(covariance[i_z, i_z], 0.0)))
+                row["modal_constant"] = float(constant)
+    # complex zero factors x^2 + c1 x + c0 (x = s / omega): f = omega sqrt(c0) / 2 pi, zeta = c1 / (2 sqrt(c0))
+    c_index = q_index + 2 * layout.n_modes
+    for m, (c1, c0) in enumerate(model.zero_factors):
+        if c1**2 >= 4 * c0:
+            continue
+        frequency = np.sqrt(c0) / (2 * np.pi)
+        i_1, i_0 = c_index + m, c_index + layout.n_zero + m
+        scaled_c0 = c0 / omega**2
+        gradient_f = np.array([0.0, frequency / (2 * scaled_c0)])  # d f / d (c1, c0) in scaled units
+        gradient_z = np.array([1 / (2 * np.sqrt(scaled_c0)), -c1 / omega / (4 * scaled_c0**1.5)])
+        block = covariance[np.ix_([i_1, i_0], [i_1, i_0])]
+        for row in rows:
+            if row["root"] == "zero" and abs(row["frequency_hz"] - frequency) <= 1e-9 * frequency:
+                row["frequency_std_hz"] = float(np.sqrt(max(gradient_f @ block @ gradient_f, 0.0)))
+                row["damping_std"] = float(np.sqrt(max(gradient_z @ block @ gradient_z, 0.0)))
     return rows
 
 
@@ -640,7 +677,7 @@ def feature_rows(channel_fit, output_axis, input_axis, estimator):
         rows.append({"output": output_axis, "input": input_axis, "estimator": estimator, "root": row["root"],
                      "kind": row["kind"], "number": row["number"], "frequency_hz": row["frequency_hz"],
                      "damping_ratio": row["damping_ratio"], "frequency_std_hz": row.get("frequency_std_hz", np.nan),
-                     "damping_std": row.get("damping_std", np.nan)})
+                     "damping_std": row.get("damping_std", np.nan), "modal_constant": row.get("modal_constant", np.nan)})
     return rows
 
 

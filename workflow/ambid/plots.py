@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 from .io import atomic_path  # noqa: E402
 
 __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
-           "calibration_convergence", "save_figure"]
+           "calibration_convergence", "youngs_modulus", "update_convergence", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -206,5 +206,60 @@ def calibration_convergence(offsets, tolerance_m, title):
     axes[0, 0].set_ylabel("offset x_c [um]")
     axes[0, -1].legend(fontsize=7)
     figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def youngs_modulus(variables, title):
+    """Young's modulus of each design element before and after the update (thesis Fig. 5.5, 6.8).
+
+    Parameters
+    ----------
+    variables : pandas.DataFrame
+        The update's stiffness variables: ``label``, ``youngs_modulus_start_pa``,
+        ``youngs_modulus_updated_pa``, ``std`` (relative), ``determined``.
+        Variables the data do not determine are drawn hatched: their value is
+        not a measurement.
+    """
+    figure, axis = plt.subplots(figsize=(max(5.0, 0.45 * len(variables) + 2.0), 3.8))
+    x = np.arange(len(variables))
+    start = variables["youngs_modulus_start_pa"].to_numpy(float) / 1e9
+    updated = variables["youngs_modulus_updated_pa"].to_numpy(float) / 1e9
+    determined = variables["determined"].to_numpy(bool)
+    axis.bar(x - 0.2, start, width=0.4, color="0.7", label="original")
+    bars = axis.bar(x + 0.2, updated, width=0.4, color=np.where(determined, "C0", "white"), edgecolor="C0",
+                    label="updated")
+    for bar, ok in zip(bars, determined):
+        if not ok:
+            bar.set_hatch("//")
+    std = variables["std"].to_numpy(float)
+    finite = np.isfinite(std) & determined
+    axis.errorbar(x[finite] + 0.2, updated[finite], yerr=2 * std[finite] * updated[finite], fmt="none", ecolor="k",
+                  capsize=2, lw=0.8)
+    axis.bar([np.nan], [np.nan], color="white", edgecolor="C0", hatch="//", label="updated, not determined by the data")
+    axis.set_xticks(x)
+    axis.set_xticklabels(variables["label"], rotation=60, ha="right", fontsize=7)
+    axis.set_ylabel("Young's modulus E [GPa]")
+    axis.grid(True, axis="y", alpha=0.3)
+    axis.legend(fontsize=7)
+    axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def update_convergence(history, chosen_start, title):
+    """``B(e)`` (thesis eq. 5.35) at every objective evaluation of every start (thesis Fig. 6.9)."""
+    figure, axis = plt.subplots(figsize=(6.5, 3.8))
+    for start, group in history.groupby("start"):
+        chosen = start == chosen_start
+        axis.semilogy(group["evaluation"], np.maximum(group["objective_b"], 1e-16), lw=1.6 if chosen else 0.7,
+                      color="C3" if chosen else "0.6", alpha=1.0 if chosen else 0.7,
+                      label=f"start {start} (chosen)" if chosen else None)
+    axis.plot([], [], color="0.6", lw=0.7, label="other starts")
+    axis.set_xlabel("objective evaluation")
+    axis.set_ylabel("B(e) (eq. 5.35)")
+    axis.grid(True, which="both", alpha=0.3)
+    axis.legend(fontsize=7)
+    axis.set_title(title)
     figure.tight_layout()
     return figure

@@ -437,17 +437,7 @@ class Rotor:
         stiffness, translational, rotary = timoshenko_element_matrices(
             p["length_m"], p["bending_stiffness"], p["shear_parameter"], p["mass_per_length"], p["inertia_per_length"]
         )
-        n = 2 * self.n_nodes
-        # element e occupies planar rows/cols 2e .. 2e+3
-        rows = (2 * np.arange(self.n_elements))[:, None] + np.arange(4)
-        r_idx = np.broadcast_to(rows[:, :, None], (self.n_elements, 4, 4)).ravel()
-        c_idx = np.broadcast_to(rows[:, None, :], (self.n_elements, 4, 4)).ravel()
-        flat = r_idx * n + c_idx
-
-        def assemble(element_matrices):
-            out = np.bincount(flat, weights=element_matrices.ravel(), minlength=n * n)
-            return out.reshape(n, n)
-
+        assemble = self._assemble
         mass = assemble(translational + rotary)
         polar = assemble(2.0 * rotary)  # polar inertia per length = 2 x transverse for tubes
         stiff = assemble(stiffness)
@@ -460,6 +450,37 @@ class Rotor:
         out = dict(mass=mass, stiffness=stiff, polar=polar, loss_stiffness=loss)
         self._cache["planar"] = out
         return out
+
+    def _assemble(self, element_matrices, elements=None):
+        """Planar global matrix from element matrices (n, 4, 4) of ``elements`` (default: all, in order)."""
+        n = 2 * self.n_nodes
+        elements = np.arange(self.n_elements) if elements is None else np.asarray(elements, dtype=int)
+        rows = (2 * elements)[:, None] + np.arange(4)  # element e occupies planar rows/cols 2e .. 2e+3
+        r_idx = np.broadcast_to(rows[:, :, None], (elements.size, 4, 4)).ravel()
+        c_idx = np.broadcast_to(rows[:, None, :], (elements.size, 4, 4)).ravel()
+        out = np.bincount(r_idx * n + c_idx, weights=np.asarray(element_matrices).ravel(), minlength=n * n)
+        return out.reshape(n, n)
+
+    def element_group_matrices(self, elements):
+        """Planar stiffness and loss stiffness of one group of elements alone.
+
+        Both scale with the group's Young's modulus (the shear modulus scales
+        with it, so the shear parameter phi does not change): the rotor's
+        stiffness is ``K = K_rest + sum_g s_g K_g`` for factors ``s_g`` on the
+        groups' moduli, the linearity the model update (thesis ch. 5.2) uses.
+
+        Returns
+        -------
+        stiffness, loss_stiffness : arrays (2 n_nodes, 2 n_nodes)
+        """
+        elements = np.asarray(elements, dtype=int)
+        p = self.element_properties()
+        stiffness, _, _ = timoshenko_element_matrices(
+            p["length_m"][elements], p["bending_stiffness"][elements], p["shear_parameter"][elements],
+            p["mass_per_length"][elements], p["inertia_per_length"][elements]
+        )
+        loss = p["loss_factor"][elements][:, None, None] * stiffness
+        return self._assemble(stiffness, elements), self._assemble(loss, elements)
 
     def matrices(self):
         """Full 4-DOF global matrices M, K, G and D of thesis eq. 2.9.

@@ -1,0 +1,46 @@
+# Stage "update": rotor model update from the measured resonances and anti-resonances (thesis ch. 5.2).
+
+
+rule update:
+    input:
+        features="results/{machine}/fit/{run}/features.parquet",
+        frf="results/{machine}/frf/{run}/frf.parquet",
+        machine=machine_model_file,
+    output:
+        comparison="results/{machine}/update/{run}/comparison.parquet",
+        comparison_table="results/{machine}/update/{run}/comparison.tsv",
+        variables="results/{machine}/update/{run}/variables.tsv",
+        correlation="results/{machine}/update/{run}/correlation.tsv",
+        history="results/{machine}/update/{run}/history.parquet",
+        machine="results/{machine}/update/{run}/machine.yaml",
+        bode=report(
+            "results/{machine}/update/{run}/figures/bode_update.png",
+            caption="../workflow/report/update_bode.rst",
+            category="Update",
+            subcategory="{machine}",
+        ),
+        modulus=report(
+            "results/{machine}/update/{run}/figures/youngs_modulus.png",
+            caption="../workflow/report/update_modulus.rst",
+            category="Update",
+            subcategory="{machine}",
+        ),
+        convergence=report(
+            "results/{machine}/update/{run}/figures/convergence.png",
+            caption="../workflow/report/update_convergence.rst",
+            category="Update",
+            subcategory="{machine}",
+        ),
+    params:
+        machine_config=machine_config,
+        machine_update=lambda wildcards: config["machines"][wildcards.machine].get("update", {}),
+        settings=config["update"],
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/update_{run}.log",
+    benchmark:
+        "logs/{machine}/update_{run}.benchmark.tsv"
+    threads: 1
+    script:
+        "../workflow/scripts/update.py"

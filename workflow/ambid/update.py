@@ -1,0 +1,443 @@
+"""Rotor model update (thesis ch. 5.2): element moduli and modal damping from measured resonances.
+
+The objective is thesis eq. 5.29-5.35.  For every measured feature i (a
+resonance or anti-resonance of channel ij, mode k) the weighted relative errors
+
+    r_f,i = w_f (f_model - f_meas) / f_meas            (eq. 5.29, 5.30, weights of eq. 5.33)
+    r_d,i = w_d w_d,k (zeta_model - zeta_meas) / zeta_meas   (eq. 5.31, 5.32, weights of eq. 5.34-5.35)
+
+form one residual vector; ``B(e) = sum |r|`` is the thesis' total error
+(eq. 5.35, 5.36).  Two optimizers minimise it:
+
+* ``nelder_mead``: the thesis' derivative-free simplex on ``B(e)`` (appendix 1);
+* ``least_squares`` (default): bounded trust-region least squares on ``sum r^2``
+  with the analytic eigenvalue sensitivities of `ambid.modal_features`, in
+  log-modulus coordinates, from the configured start and random starts (the
+  appendix' uniform 0 .. 2 x nominal) against the local minima the thesis
+  warns about.  Both reach ``B = 0`` on consistent data.
+
+Model roots are matched to measured ones by frequency proximity and, for
+resonances, the sign of the modal constant (the mode shape's sign at sensor
+and actuator), not by index, so modes that move past each other stay matched.
+`identifiability` says which variables the data determine.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import scipy.optimize
+
+from .errors import AmbidError, settings_from_mapping
+from .modal_features import LIGHT_DAMPING, root_feature_derivatives, root_features
+
+__all__ = ["UpdateSettings", "UpdateError", "UpdateProblem", "UpdateResult", "measured_features", "update_model",
+           "least_squares_update", "nelder_mead_update", "identifiability", "comparison_rows", "updated_machine_config"]
+
+THESIS_INDEX = {"NX": 1, "NY": 2, "DX": 3, "DY": 4}  # thesis Table 5.1
+ORDINALS = {1: "first", 2: "second", 3: "third", 4: "fourth", 5: "fifth"}
+
+
+class UpdateError(AmbidError):
+    """The update cannot run: no usable measured features, an inconsistent setting."""
+
+
+@dataclass(frozen=True)
+class UpdateSettings:
+    """The ``update:`` config section (config/README.md), merged with the machine's ``update:`` entry."""
+
+    tags: tuple = ()
+    per_element: bool = True
+    damping: str = "common"
+    channels: str = "same_plane"
+    modes: int = 1
+    optimizer: str = "least_squares"
+    starts: int = 8
+    seed: int = 0
+    max_evaluations: int = 300
+    stiffness_bounds: tuple = (1e-3, 2.0)
+    damping_bounds: tuple = (0.0, 0.2)
+    weights: dict = field(default_factory=lambda: dict(resonance_frequency=1.0, anti_resonance_frequency=1.0,
+                                                       resonance_damping=1.0, anti_resonance_damping=1.0, damping=0.01))
+    feature_std_floor: dict = field(default_factory=lambda: dict(frequency=5e-4, damping=0.05))
+    determined_std: float = 0.1
+    regularization: float = 5e-4
+
+    @classmethod
+    def from_config(cls, section, machine_section=None):
+        merged = {**(section or {}), **(machine_section or {})}
+        settings = settings_from_mapping(cls, merged, "update")
+        if settings.optimizer not in ("least_squares", "nelder_mead"):
+            raise UpdateError(f"update.optimizer must be 'least_squares' or 'nelder_mead', not {settings.optimizer!r}")
+        if settings.modes < 1 or settings.starts < 1:
+            raise UpdateError("update.modes and update.starts must be >= 1")
+        return settings
+
+
+def measured_features(frame, channels, modes):
+    """The measured resonances and anti-resonances the update matches (from the fit stage's features).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        ``features.parquet`` of the fit stage.
+    channels : list of (output, input)
+    modes : int
+        Use flexible modes (resonance / anti-resonance numbers) 1 .. ``modes`` of each channel.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per feature: ``output, input, root (pole | zero), number,
+        frequency_hz, damping_ratio, frequency_std_hz, damping_std, modal_constant``.
+    """
+    wanted = set(channels)
+    rows = frame[(frame["estimator"] == "output_error") & frame["kind"].isin(["resonance", "anti_resonance"])]
+    rows = rows[np.array([(o, i) in wanted for o, i in zip(rows["output"], rows["input"])], dtype=bool)]
+    rows = rows[(rows["damping_ratio"] > 0) & (rows["damping_ratio"] < LIGHT_DAMPING)]
+    # renumber the lightly damped ones per channel and root, lowest first (the fit numbers every resonance)
+    rows = rows.sort_values(["output", "input", "root", "frequency_hz"]).copy()
+    rows["number"] = rows.groupby(["output", "input", "root"]).cumcount() + 1
+    rows = rows[rows["number"] <= modes]
+    if "modal_constant" not in rows:
+        rows["modal_constant"] = np.nan
+    columns = ["output", "input", "root", "number", "frequency_hz", "damping_ratio", "frequency_std_hz", "damping_std",
+               "modal_constant"]
+    if rows.empty:
+        raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)}")
+    return rows[columns].reset_index(drop=True)
+
+
+class UpdateProblem:
+    """Residuals of thesis eq. 5.29-5.35 as functions of the design variables.
+
+    Parameters
+    ----------
+    model : ambid.modal_features.ModalFeatureModel
+    measured : pandas.DataFrame
+        `measured_features` rows.
+    settings : UpdateSettings
+    sign_penalty : float
+        Matching cost of a resonance whose modal-constant sign differs from
+        the measured one, in units of |log frequency ratio| (0.3: a mode 35 %
+        away with the right sign is preferred).
+    """
+
+    def __init__(self, model, measured, settings, sign_penalty=0.3):
+        self.model, self.measured, self.settings = model, measured.reset_index(drop=True), settings
+        self.variables = model.variables
+        weights = settings.weights
+        is_pole = (self.measured["root"] == "pole").to_numpy()
+        self.frequency_weight = np.where(is_pole, weights["resonance_frequency"], weights["anti_resonance_frequency"])
+        self.damping_weight = weights["damping"] * np.where(is_pole, weights["resonance_damping"],
+                                                            weights["anti_resonance_damping"])
+        self.frequency = self.measured["frequency_hz"].to_numpy(float)
+        self.damping = self.measured["damping_ratio"].to_numpy(float)
+        self.groups = [(key, index.to_numpy()) for key, index in self.measured.groupby(["output", "input", "root"]).groups.items()]
+        self.sign_penalty = sign_penalty
+        self.constant_sign = np.nan_to_num(np.sign(self.measured["modal_constant"].to_numpy(float)))  # 0: unknown
+        self.log_scaled = np.array([v.kind == "stiffness" for v in self.variables])
+        self.lower = np.array([v.lower for v in self.variables])
+        self.upper = np.array([v.upper for v in self.variables])
+        self.start = model.start
+        self.history = []  # (B(e), sum of squares) of every evaluation
+
+    # -------------------------------------------------------- coordinates
+    def to_theta(self, values):
+        """Optimizer coordinates: log of the modulus factors, damping ratios as they are."""
+        return np.where(self.log_scaled, np.log(np.maximum(values, 1e-300)), values)
+
+    def to_values(self, theta):
+        return np.where(self.log_scaled, np.exp(theta), theta)
+
+    def random_start(self, rng):
+        """A start drawn as in the thesis' appendix: uniform between the bounds (moduli: 0 .. 2 x nominal)."""
+        return rng.uniform(np.maximum(self.lower, 0.0), self.upper).clip(self.lower, self.upper)
+
+    # ---------------------------------------------------------- prediction
+    def predict(self, values, derivatives=False):
+        """Model frequency [Hz] and damping of the root matched to every measured feature.
+
+        Returns
+        -------
+        frequency, damping : arrays (n_features,)
+        d_frequency, d_damping : arrays (n_features, n_variables) or None
+            Derivatives with respect to the design values.
+        """
+        features = self.model.evaluate(values, derivatives)
+        n = len(self.measured)
+        frequency, damping = np.empty(n), np.empty(n)
+        d_frequency = np.empty((n, len(self.variables))) if derivatives else None
+        d_damping = np.empty_like(d_frequency) if derivatives else None
+        described = {}  # root set -> (frequency, damping): a plane's poles serve all its channels
+        for (output, input_axis, root), index in self.groups:
+            if root == "pole":
+                plane = "x" if output[1] == "X" else "y"
+                roots = features.poles[plane]
+                derivative = features.pole_derivatives[plane] if derivatives else None
+            else:
+                roots = features.zeros[(output, input_axis)]
+                derivative = features.zero_derivatives[(output, input_axis)] if derivatives else None
+            if roots.size < index.size:
+                raise UpdateError(f"channel {output}/{input_axis}: the model has {roots.size} complex {root}s, "
+                                  f"{index.size} measured")
+            if id(roots) not in described:  # identical planes share their arrays
+                described[id(roots)] = root_features(roots)
+            f_model, z_model = described[id(roots)]
+            cost = np.abs(np.log(f_model[None, :] / self.frequency[index, None])) + (z_model[None, :] >= LIGHT_DAMPING)
+            if root == "pole":
+                signs = np.sign(features.modal_constants[(output, input_axis)])
+                cost += self.sign_penalty * ((self.constant_sign[index, None] * signs[None, :]) < 0)
+            if index.size == 1:
+                matched = np.argmin(cost, axis=1)
+            else:
+                rows, columns = scipy.optimize.linear_sum_assignment(cost)
+                matched = columns[np.argsort(rows)]
+            frequency[index], damping[index] = f_model[matched], z_model[matched]
+            if derivatives:
+                df, dz = root_feature_derivatives(roots[matched], derivative[matched])
+                d_frequency[index], d_damping[index] = df, dz
+        return frequency, damping, d_frequency, d_damping
+
+    def residuals(self, values, derivatives=False):
+        """Weighted relative errors (eq. 5.29-5.32 with the weights of eq. 5.33-5.35), signed; and d r / d values."""
+        frequency, damping, d_frequency, d_damping = self.predict(values, derivatives)
+        residual = np.concatenate([self.frequency_weight * (frequency - self.frequency) / self.frequency,
+                                   self.damping_weight * (damping - self.damping) / self.damping])
+        self.history.append((float(np.sum(np.abs(residual))), float(residual @ residual)))
+        if not derivatives:
+            return residual, None
+        jacobian = np.vstack([(self.frequency_weight / self.frequency)[:, None] * d_frequency,
+                              (self.damping_weight / self.damping)[:, None] * d_damping])
+        return residual, jacobian
+
+    def objective(self, values):
+        """``B(e)`` of thesis eq. 5.35-5.36: the weighted sum of absolute relative errors."""
+        return float(np.sum(np.abs(self.residuals(values)[0])))
+
+    def prior(self, values, derivatives=False):
+        """Regularization residuals ``lambda log(e_p / e_p,start)`` of the modulus factors, and their Jacobian.
+
+        Appended to the least-squares residuals (not to ``B(e)``), they pick,
+        among designs that fit the features equally well, the one closest to
+        the machine as configured: a variable the data do not determine stays
+        where the engineer put it instead of drifting to a bound.  ``lambda``
+        (``settings.regularization``) is small against the frequency residuals
+        of determined variables, so it does not bias them.
+        """
+        weight = self.settings.regularization * self.log_scaled
+        residual = weight * (self.to_theta(values) - self.to_theta(self.start))
+        if not derivatives:
+            return residual, None
+        return residual, np.diag(weight / np.where(self.log_scaled, values, 1.0))
+
+
+@dataclass
+class UpdateResult:
+    """Outcome of `update_model`.
+
+    Attributes
+    ----------
+    values : array
+        Updated design values (modulus factors relative to the machine as configured; added damping ratios).
+    objective : float
+        ``B(e)`` at ``values``.
+    history : pandas.DataFrame
+        ``start, evaluation, objective_b, sum_of_squares`` of every evaluation (thesis Fig. 6.9).
+    starts : pandas.DataFrame
+        Per start: initial and final ``B(e)``, evaluations, and whether it was chosen.
+    evaluations : int
+    """
+
+    values: np.ndarray
+    objective: float
+    history: pd.DataFrame
+    starts: pd.DataFrame
+    evaluations: int
+
+
+def least_squares_update(problem, start, max_evaluations=300):
+    """Bounded least squares on the residuals with analytic Jacobian, from ``start``.
+
+    Returns the design values found and the number of residual evaluations.
+    """
+    cache = {}
+
+    def evaluate(theta, derivatives):
+        key = (theta.tobytes(), derivatives)
+        if key not in cache:
+            cache.clear()
+            values = problem.to_values(theta)
+            residual, jacobian = problem.residuals(values, derivatives)
+            prior, prior_jacobian = problem.prior(values, derivatives)
+            residual = np.concatenate([residual, prior])
+            if derivatives:  # chain rule to the log coordinates
+                jacobian = np.vstack([jacobian, prior_jacobian]) * np.where(problem.log_scaled, values, 1.0)[None, :]
+            cache[key] = (residual, jacobian)
+        return cache[key]
+
+    lower, upper = problem.to_theta(problem.lower), problem.to_theta(problem.upper)
+    theta0 = np.clip(problem.to_theta(np.asarray(start, dtype=float)), lower, upper)
+    # start strictly inside the bounds (a damping ratio of 0 sits on its bound; trf crawls away from there)
+    margin = 1e-3 * (upper - lower)
+    theta0 = np.where(problem.log_scaled, theta0, np.clip(theta0, lower + margin, upper - margin))
+    before = len(problem.history)
+    # ftol 1e-4: once an iteration improves the cost by less than 0.01 %, what is left is the regularization
+    # sliding undetermined variables along the valley; consistent data still converge quadratically to ~0
+    solution = scipy.optimize.least_squares(
+        lambda t: evaluate(t, False)[0], theta0, jac=lambda t: evaluate(t, True)[1], bounds=(lower, upper),
+        method="trf", x_scale="jac", ftol=1e-4, xtol=1e-10, gtol=1e-10, max_nfev=max_evaluations)
+    return problem.to_values(solution.x), len(problem.history) - before
+
+
+def nelder_mead_update(problem, start, max_evaluations=2500, max_iterations=1000, tolerance=1e-10):
+    """The thesis' optimizer (appendix 1: fminsearch, MaxIter 1000, MaxFunEvals 2500) on ``B(e)``, bounded."""
+    before = len(problem.history)
+    bounds = list(zip(problem.lower, problem.upper))
+    solution = scipy.optimize.minimize(
+        problem.objective, np.clip(start, problem.lower, problem.upper), method="Nelder-Mead", bounds=bounds,
+        options=dict(maxiter=max_iterations, maxfev=max_evaluations, xatol=tolerance, fatol=tolerance,
+                     adaptive=len(bounds) > 4))
+    return solution.x, len(problem.history) - before
+
+
+def update_model(problem, settings):
+    """Run the configured optimizer from the configured start and ``settings.starts - 1`` random starts.
+
+    The start with the lowest ``sum r^2`` (least squares) or ``B(e)`` (Nelder-Mead)
+    wins; starts that end within 1e-9 of it are ties, broken in favour of the
+    smallest change from the machine as configured (undetermined variables
+    then stay where the engineer put them).
+    """
+    rng = np.random.default_rng(settings.seed)
+    starts = [problem.start] + [problem.random_start(rng) for _ in range(settings.starts - 1)]
+    optimizer = least_squares_update if settings.optimizer == "least_squares" else nelder_mead_update
+    history, summary, outcomes = [], [], []
+    for k, start in enumerate(starts):
+        first = len(problem.history)
+        values, evaluations = optimizer(problem, start, settings.max_evaluations)
+        trace = np.array(problem.history[first:]).reshape(-1, 2)
+        residual, _ = problem.residuals(values)
+        problem.history.pop()
+        prior = problem.prior(values)[0]
+        final = (float(residual @ residual + prior @ prior) if settings.optimizer == "least_squares"
+                 else float(np.sum(np.abs(residual))))
+        change = float(np.linalg.norm(problem.to_theta(values) - problem.to_theta(problem.start)))
+        outcomes.append((final, change, values))
+        history.append(pd.DataFrame({"start": k, "evaluation": np.arange(1, len(trace) + 1), "objective_b": trace[:, 0],
+                                     "sum_of_squares": trace[:, 1]}))
+        summary.append({"start": k, "kind": "configured" if k == 0 else "random", "initial_b": trace[0, 0],
+                        "final_b": float(np.sum(np.abs(residual))), "evaluations": evaluations})
+    best = min(o[0] for o in outcomes)
+    ties = [k for k, o in enumerate(outcomes) if o[0] <= best + 1e-9 * max(best, 1e-12) + 1e-18]
+    chosen = min(ties, key=lambda k: outcomes[k][1])
+    summary = pd.DataFrame(summary)
+    summary["chosen"] = summary["start"] == chosen
+    values = outcomes[chosen][2]
+    return UpdateResult(values=values, objective=float(summary.loc[chosen, "final_b"]), history=pd.concat(history),
+                        starts=summary, evaluations=int(summary["evaluations"].sum()))
+
+
+def identifiability(problem, values):
+    """Which design variables the measured features determine, and how well.
+
+    The Jacobian of the features, each divided by its standard uncertainty
+    (the fit's, floored at ``settings.feature_std_floor`` of its value: the
+    fit's statistical uncertainty does not cover systematic errors), with
+    respect to the relative change of each variable, is decomposed by SVD.
+    Directions with a standard uncertainty below ``settings.determined_std``
+    are determined.
+
+    Returns
+    -------
+    rows : list of dict
+        Per variable: ``std`` (relative standard uncertainty within the
+        determined directions), ``resolution`` (diagonal of the resolution
+        matrix: 1 = fixed by the data, 0 = not seen at all), ``determined``
+        (resolution >= 0.9), ``at_bound``.
+    correlation : array (n, n)
+        Correlation of the variables' estimates within the determined directions.
+    summary : dict
+        ``rank`` (determined directions), ``singular_values``.
+    """
+    settings = problem.settings
+    frequency, damping, d_frequency, d_damping = problem.predict(values, derivatives=True)
+    floor = settings.feature_std_floor
+    sigma_f = np.fmax(problem.measured["frequency_std_hz"].to_numpy(float), floor["frequency"] * problem.frequency)
+    sigma_d = np.fmax(problem.measured["damping_std"].to_numpy(float), floor["damping"] * problem.damping)
+    scale = np.maximum(np.abs(values), np.where(problem.log_scaled, 0.0, 1e-3))  # relative change of each variable
+    jacobian = np.vstack([d_frequency / sigma_f[:, None], d_damping / sigma_d[:, None]]) * scale[None, :]
+    _, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
+    determined = singular > 1.0 / settings.determined_std
+    basis = vt[determined].T
+    resolution = np.sum(basis**2, axis=1)
+    covariance = (basis / singular[determined] ** 2) @ basis.T
+    std = np.sqrt(np.diag(covariance))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        correlation = covariance / np.outer(std, std)
+    at_bound = (values <= problem.lower * (1 + 1e-6)) | (values >= problem.upper * (1 - 1e-6))
+    rows = [{"std": float(s) if r >= 0.9 else np.inf, "resolution": float(r), "determined": bool(r >= 0.9),
+             "at_bound": bool(b)} for s, r, b in zip(std, resolution, at_bound)]
+    return rows, correlation, {"rank": int(determined.sum()), "singular_values": singular}
+
+
+def comparison_rows(problem, original, updated):
+    """Feature table in the style of thesis Tables 5.2/5.3 and 6.4/6.5: measured, original, updated, errors.
+
+    Errors are eq. 5.29-5.32 (relative to the measured value) in percent.
+    """
+    f0, z0, _, _ = problem.predict(original)
+    f1, z1, _, _ = problem.predict(updated)
+    rows = []
+    for i, row in problem.measured.iterrows():
+        kind = "resonance" if row["root"] == "pole" else "anti-resonance"
+        channel = f"{row['input']}({THESIS_INDEX[row['input']]},{THESIS_INDEX[row['output']]})"
+        ordinal = ORDINALS.get(int(row["number"]), f"#{int(row['number'])}")
+        for quantity, unit, measured, std, before, after in (
+                ("frequency", "Hz", row["frequency_hz"], row["frequency_std_hz"], f0[i], f1[i]),
+                ("damping ratio", "-", row["damping_ratio"], row["damping_std"], z0[i], z1[i])):
+            rows.append({"feature": f"{channel} {ordinal} {kind} {quantity}", "output": row["output"],
+                         "input": row["input"], "root": row["root"], "number": int(row["number"]), "quantity": quantity,
+                         "unit": unit, "measured": measured, "measured_std": std, "original": before,
+                         "original_error_pct": 100 * abs(before - measured) / measured, "updated": after,
+                         "absolute_error": abs(after - measured), "error_pct": 100 * abs(after - measured) / measured})
+    return rows
+
+
+def updated_machine_config(machine_config, variables, values, note=""):
+    """The machine config with the updated moduli and damping as ``effects:`` entries.
+
+    Stiffness variables become ``element_stiffness`` entries per tag (one
+    factor per element when updated per element), multiplied into an entry
+    the machine already had for that tag; damping variables become one
+    ``modal_damping`` entry (a value per retained flexible mode when per mode).
+    """
+    config = {key: value for key, value in machine_config.items() if key != "effects"}
+    effects = [dict(e) for e in machine_config.get("effects") or []]
+    by_tag = {}
+    for variable, value in zip(variables, values):
+        if variable.kind == "stiffness":
+            by_tag.setdefault(variable.tag, []).append((variable, float(value)))
+    for tag, entries in by_tag.items():
+        factors = np.array([value for _, value in entries])
+        existing = next((e for e in effects if e["name"] == "element_stiffness" and e["parameters"]["tag"] == tag), None)
+        if existing is not None:
+            factors = factors * np.asarray(existing["parameters"]["scale"], dtype=float)
+            effects.remove(existing)
+        scale = [float(f"{v:.6g}") for v in np.atleast_1d(factors)] if len(entries) > 1 else float(f"{factors[0]:.6g}")
+        effects.append({"name": "element_stiffness", "parameters": {"tag": tag, "scale": scale}})
+    damping = [(variable, float(value)) for variable, value in zip(variables, values) if variable.kind == "damping"]
+    if damping:
+        effects = [e for e in effects if e["name"] != "modal_damping"]
+        if len(damping) == 1 and not damping[0][0].modes:
+            ratio = float(f"{damping[0][1]:.6g}")
+        else:
+            n_flexible = int(machine_config.get("rotor", {}).get("retained_modes", 12)) - 2
+            ratio = [float(f"{damping[-1][1]:.6g}")] * n_flexible
+            for variable, value in damping[:-1]:
+                ratio[variable.modes[0] - 1] = float(f"{value:.6g}")
+        effects.append({"name": "modal_damping", "parameters": {"damping_ratio": ratio}})
+    config["effects"] = effects
+    if note:
+        config["description"] = f"{machine_config.get('description', '').strip()} {note}".strip()
+    return config

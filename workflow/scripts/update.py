@@ -1,0 +1,108 @@
+"""Rule `update`: rotor model update (thesis ch. 5.2) from the fit stage's resonances -> updated machine, tables, figures."""
+
+import logging
+import sys
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from ambid.channel_fit import select_channels
+from ambid.frf import channel
+from ambid.io import atomic_path, read_parquet, write_parquet, write_tsv
+from ambid.loop import zero_order_hold
+from ambid.machine import RADIAL_AXES, machine_from_config
+from ambid.modal_features import ModalFeatureModel, design_variables
+from ambid.plant import Plant
+from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
+from ambid.update import (UpdateProblem, UpdateSettings, comparison_rows, identifiability, measured_features,
+                          update_model, updated_machine_config)
+
+sys.stderr = open(snakemake.log[0], "w")
+logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
+log = logging.getLogger("update")
+
+machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
+settings = UpdateSettings.from_config(snakemake.params.settings, snakemake.params.machine_update)
+machine_config = snakemake.params.machine_config
+machine = machine_from_config(machine_config, name=machine_name, source=snakemake.input.machine)
+features, _ = read_parquet(snakemake.input.features, kind="fit_features")
+channels = [(o, i) for o, i in select_channels(settings.channels) if o[1] == i[1]]  # the planes do not couple
+measured = measured_features(features, channels, settings.modes)
+variables = design_variables(machine, settings.tags, settings.per_element, settings.damping, settings.modes,
+                             settings.stiffness_bounds, settings.damping_bounds)
+zero_channels = sorted({(o, i) for o, i, root in zip(measured["output"], measured["input"], measured["root"]) if root == "zero"})
+model = ModalFeatureModel(machine, variables, zero_channels)
+problem = UpdateProblem(model, measured, settings)
+log.info("%d measured features of %d channels, %d design variables, optimizer %s, %d starts", len(measured),
+         len(set(zip(measured["output"], measured["input"]))), len(variables), settings.optimizer, settings.starts)
+result = update_model(problem, settings)
+log.info("B(e) %.4g -> %.4g after %d evaluations; starts:\n%s", problem.objective(problem.start), result.objective,
+         result.evaluations, result.starts.to_string(index=False))
+rows, correlation, summary = identifiability(problem, result.values)
+log.info("identifiability: %d of %d variable directions determined; singular values %s", summary["rank"], len(variables),
+         np.array2string(summary["singular_values"], precision=3))
+
+# tables: the thesis' feature comparison (Tables 5.2/5.3, 6.4/6.5) and the design variables
+comparison = pd.DataFrame(comparison_rows(problem, problem.start, result.values))
+write_parquet(comparison, snakemake.output.comparison, kind="update_comparison",
+              units={"measured": "Hz or -", "measured_std": "Hz or -", "original": "Hz or -", "updated": "Hz or -",
+                     "absolute_error": "Hz or -", "number": "-",
+                     "error_pct": "%", "original_error_pct": "%"},
+              metadata={"machine": machine_name, "run": run})
+write_tsv(comparison, snakemake.output.comparison_table)
+structural = model.machine.rotor  # the moduli as configured, earlier element_stiffness effects included
+table = []
+for variable, value, row in zip(variables, result.values, rows):
+    entry = {"variable": variable.name, "kind": variable.kind, "tag": variable.tag,
+             "elements": " ".join(str(e + 1) for e in variable.elements), "start": variable.start, "updated": value,
+             "lower": variable.lower, "upper": variable.upper, **row}
+    if variable.kind == "stiffness":
+        modulus = structural.elements[variable.elements[0]].material.youngs_modulus_pa
+        entry.update(youngs_modulus_start_pa=modulus, youngs_modulus_updated_pa=modulus * value)
+    table.append(entry)
+table = pd.DataFrame(table)
+write_tsv(table, snakemake.output.variables)
+write_tsv(pd.DataFrame(correlation, index=table["variable"], columns=table["variable"]).reset_index(),
+          snakemake.output.correlation)
+write_parquet(result.history, snakemake.output.history, kind="update_history",
+              units={"objective_b": "-", "sum_of_squares": "-", "start": "-", "evaluation": "-"},
+              metadata={"machine": machine_name, "run": run, "optimizer": settings.optimizer})
+
+# the updated machine: a config a user can read and reuse as a model
+undetermined = [v.name for v, r in zip(variables, rows) if not r["determined"]]
+updated_config = updated_machine_config(machine_config, variables, result.values)
+updated_machine = machine_from_config(updated_config, name=machine_name, source=snakemake.output.machine)
+header = (f"# {machine_name} updated by ambid (rule update, thesis ch. 5.2) from the features of run {run}.\n"
+          f"# B(e) (eq. 5.35): {problem.objective(problem.start):.4g} -> {result.objective:.4g}.  The 'effects' below carry the\n"
+          f"# updated moduli and damping; use this file as a machine model (config.yaml: machines.<name>.model).\n")
+if undetermined:
+    header += f"# Not determined by the data (values arbitrary within their bounds): {', '.join(undetermined)}.\n"
+with atomic_path(snakemake.output.machine) as temporary:
+    temporary.write_text(header + yaml.safe_dump(updated_config, sort_keys=False, width=110))
+
+# figures: Bode overlay (thesis Fig. 6.6 / 6.7), moduli (Fig. 5.5 / 6.8), convergence (Fig. 6.9)
+frf, _ = read_parquet(snakemake.input.frf, kind="frf")
+estimator = "mimo" if (frf["estimator"] == "mimo").any() else "siso"
+plants = {"original model": Plant(machine), "updated model": Plant(updated_machine)}
+panels, overlays = [], []
+for output, input_axis in [(o, i) for o, i in channels if o[1] == "X"]:
+    frequency, values, std = channel(frf, estimator, output, input_axis)
+    if frequency.size == 0:
+        continue
+    hold = zero_order_hold(frequency, machine.sample_time_s)
+    k, j = RADIAL_AXES.index(output), RADIAL_AXES.index(input_axis)
+    panels.append((f"{output}/{input_axis}", frequency, values, std))
+    overlays.append({name: plant.radial_frequency_response(frequency)[:, k, j] * hold for name, plant in plants.items()})
+title = f"{machine_name} {run}"
+save_figure(bode_measured(panels, f"{title}: measured, original and updated model", fits=overlays), snakemake.output.bode,
+            snakemake.params.dpi)
+stiffness = table[table["kind"] == "stiffness"].assign(label=lambda t: t["variable"])
+save_figure(youngs_modulus(stiffness, f"{title}: Young's modulus of the design elements"), snakemake.output.modulus,
+            snakemake.params.dpi)
+chosen = int(result.starts.loc[result.starts["chosen"], "start"].iloc[0])
+save_figure(update_convergence(result.history, chosen, f"{title}: {settings.optimizer} convergence"),
+            snakemake.output.convergence, snakemake.params.dpi)
+worst = comparison.groupby("quantity")["error_pct"].max()
+log.info("largest error after the update: frequency %.4f %%, damping ratio %.2f %%", worst.get("frequency", np.nan),
+         worst.get("damping ratio", np.nan))
