@@ -9,6 +9,7 @@ import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .io import atomic_path  # noqa: E402
@@ -221,14 +222,13 @@ def youngs_modulus(variables, title):
         Variables the data do not determine are drawn hatched: their value is
         not a measurement.
     """
-    figure, axis = plt.subplots(figsize=(max(5.0, 0.45 * len(variables) + 2.0), 3.8))
+    figure, axis = plt.subplots(figsize=(max(7.0, 0.45 * len(variables) + 2.0), 3.8))
     x = np.arange(len(variables))
     start = variables["youngs_modulus_start_pa"].to_numpy(float) / 1e9
     updated = variables["youngs_modulus_updated_pa"].to_numpy(float) / 1e9
     determined = variables["determined"].to_numpy(bool)
-    axis.bar(x - 0.2, start, width=0.4, color="0.7", label="original")
-    bars = axis.bar(x + 0.2, updated, width=0.4, color=np.where(determined, "C0", "white"), edgecolor="C0",
-                    label="updated")
+    axis.bar(x - 0.2, start, width=0.4, color="0.7")
+    bars = axis.bar(x + 0.2, updated, width=0.4, color=np.where(determined, "C0", "white"), edgecolor="C0")
     for bar, ok in zip(bars, determined):
         if not ok:
             bar.set_hatch("//")
@@ -236,12 +236,13 @@ def youngs_modulus(variables, title):
     finite = np.isfinite(std) & determined
     axis.errorbar(x[finite] + 0.2, updated[finite], yerr=2 * std[finite] * updated[finite], fmt="none", ecolor="k",
                   capsize=2, lw=0.8)
-    axis.bar([np.nan], [np.nan], color="white", edgecolor="C0", hatch="//", label="updated, not determined by the data")
     axis.set_xticks(x)
     axis.set_xticklabels(variables["label"], rotation=60, ha="right", fontsize=7)
     axis.set_ylabel("Young's modulus E [GPa]")
     axis.grid(True, axis="y", alpha=0.3)
-    axis.legend(fontsize=7)
+    handles = [Patch(color="0.7", label="original"), Patch(color="C0", label="updated (+-2 sigma)"),
+               Patch(facecolor="white", edgecolor="C0", hatch="//", label="updated, not determined by the data")]
+    axis.legend(handles=handles, fontsize=7)
     axis.set_title(title)
     figure.tight_layout()
     return figure
