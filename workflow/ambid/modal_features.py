@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import ModelError
 from .machine import AXIS_LOCATION, BEARINGS, RADIAL_AXES
-from .plant import RIGID_MODES, Plant, damping_ratio
+from .plant import RIGID_MODES, Plant
 
 __all__ = ["DesignVariable", "design_variables", "StructuralFeatures", "ModalFeatureModel", "LIGHT_DAMPING", "root_features",
            "root_feature_derivatives"]
