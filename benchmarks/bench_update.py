@@ -37,43 +37,17 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
 
-from ambid.channel_fit import select_channels  # noqa: E402
 from ambid.effects import effect_from_config  # noqa: E402
 from ambid.io import read_parquet  # noqa: E402
 from ambid.machine import machine_from_config  # noqa: E402
-from ambid.modal_features import ModalFeatureModel, design_variables  # noqa: E402
-from ambid.plant import Plant, damping_ratio  # noqa: E402
+from ambid.plant import Plant  # noqa: E402
 from ambid.rig import rig_from_config  # noqa: E402
-from ambid.update import (UpdateProblem, UpdateSettings, comparison_rows, identifiability, measured_features,  # noqa: E402
-                          nelder_mead_update, update_model)
+from ambid.update import (UpdateSettings, comparison_rows, identifiability, measured_features,  # noqa: E402
+                          nelder_mead_update, reference_features, update_channels, update_model, update_problem)
 
 ROOT = Path(__file__).resolve().parents[1]
 THESIS_MODULI_GPA = np.array([107.7, 80.1, 41.1, 18.9])
-SAME_PLANE = select_channels("same_plane")
-
-
-def exact_features(machine, channels, band_hz):
-    plant = Plant(machine)
-    rows = []
-    for output, input_axis in channels:
-        poles, residues = plant.channel_residues(output, input_axis)
-        for root, values, residue in (("pole", poles, residues), ("zero", plant.zeros(output, input_axis), None)):
-            for k, value in enumerate(values):
-                if value.imag > 0 and damping_ratio(value) < 0.2 and abs(value) < 2 * np.pi * band_hz:
-                    rows.append({"output": output, "input": input_axis, "estimator": "output_error", "root": root,
-                                 "kind": "resonance" if root == "pole" else "anti_resonance", "number": 0,
-                                 "frequency_hz": abs(value) / (2 * np.pi), "damping_ratio": float(damping_ratio(value)),
-                                 "frequency_std_hz": np.nan, "damping_std": np.nan,
-                                 "modal_constant": np.real(2j * value.imag * residue[k]) if residue is not None else np.nan})
-    return pd.DataFrame(rows)
-
-
-def make_problem(machine, features, channels, settings):
-    measured = measured_features(features, channels, settings.modes)
-    variables = design_variables(machine, settings.tags, settings.per_element, settings.damping, settings.modes,
-                                 settings.stiffness_bounds, settings.damping_bounds)
-    zeros = sorted({(o, i) for o, i, r in zip(measured["output"], measured["input"], measured["root"]) if r == "zero"})
-    return UpdateProblem(ModalFeatureModel(machine, variables, zeros), measured, settings)
+SAME_PLANE = update_channels("same_plane")
 
 
 def evaluations_per_second(problem, derivatives=False, seconds=1.5):
@@ -125,7 +99,7 @@ def demo20(config):
              ("thesis set: NX(1,1), DX(3,3), first mode", [("NX", "NX"), ("DX", "DX")], 1, 1000.0)]
     for label, channels, modes, band in cases:
         settings = UpdateSettings.from_config({"tags": ["design"], "modes": modes, "damping": "none", "seed": 3})
-        problem = make_problem(machine, exact_features(reference, channels, band), channels, settings)
+        problem = update_problem(machine, reference_features(Plant(reference), channels, band), settings, channels)
         plain, with_jacobian = evaluations_per_second(problem), evaluations_per_second(problem, True)
         t0 = time.perf_counter()
         result = update_model(problem, settings)
@@ -164,8 +138,8 @@ def hs(config):
     machine = machine_from_config(config["hs_eden_like"], name="hs_eden_like")
     workflow = yaml.safe_load((ROOT / "config/config.yaml").read_text())
     settings = UpdateSettings.from_config(workflow["update"], workflow["machines"]["hs_eden_like"]["update"])
-    channels = [c for c in select_channels(settings.channels) if c[0][1] == c[1][1]]
-    problem = make_problem(machine, features, channels, settings)
+    channels = update_channels(settings.channels)
+    problem = update_problem(machine, features, settings)
     print(f"== hs_eden_like on rig data (run ident01): {len(problem.measured)} features, {len(problem.variables)} variables "
           f"(14 moduli + damping), {settings.starts} starts")
     t0 = time.perf_counter()
@@ -185,7 +159,7 @@ def hs(config):
           f"{[v.name for v, r in zip(problem.variables, rows) if r['determined']]}")
     # the rig's truth, known only to this benchmark: how far are the measured and the updated features from it?
     rig = rig_from_config(yaml.safe_load((ROOT / "config/rigs/hs_eden_like.yaml").read_text()), config["hs_eden_like"])
-    truth = exact_features(rig.machine, channels, 800.0)
+    truth = reference_features(Plant(rig.machine), channels, 800.0)
     truth_measured = measured_features(truth, channels, settings.modes)
     key = ["output", "input", "root"]
     merged = problem.measured.merge(truth_measured, on=key + ["number"], suffixes=("", "_truth"))

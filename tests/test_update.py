@@ -4,35 +4,21 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ambid.channel_fit import select_channels
 from ambid.effects import effect_from_config
 from ambid.machine import machine_from_config
-from ambid.modal_features import ModalFeatureModel, design_variables
-from ambid.plant import Plant, damping_ratio
-from ambid.update import (UpdateError, UpdateProblem, UpdateSettings, comparison_rows, identifiability,
-                          measured_features, nelder_mead_update, update_model, updated_machine_config)
+from ambid.plant import Plant
+from ambid.update import (UpdateError, UpdateSettings, comparison_rows, identifiability, measured_features,
+                          nelder_mead_update, reference_features, update_channels, update_model, update_problem,
+                          updated_machine_config)
 
 # thesis ch. 5.3: elements 5-8 of the reference model at 107.7, 80.1, 41.1 and 18.9 GPa (nominal 200 GPa)
 THESIS_MODULI_GPA = np.array([107.7, 80.1, 41.1, 18.9])
-SAME_PLANE = [(o, i) for o, i in select_channels("same_plane")]
+SAME_PLANE = update_channels("same_plane")
 
 
-def reference_features(machine, band_hz):
+def features_of(machine, band_hz):
     """What the fit stage reports for a plant known exactly: every lightly damped pole and zero in band."""
-    plant = Plant(machine)
-    rows = []
-    for output, input_axis in SAME_PLANE:
-        poles, residues = plant.channel_residues(output, input_axis)
-        zeros = plant.zeros(output, input_axis)
-        for root, values, constants in (("pole", poles, residues), ("zero", zeros, None)):
-            for k, value in enumerate(values):
-                if value.imag > 0 and damping_ratio(value) < 0.2 and abs(value) < 2 * np.pi * band_hz:
-                    constant = np.real(2j * value.imag * constants[k]) if constants is not None else np.nan
-                    rows.append({"output": output, "input": input_axis, "estimator": "output_error", "root": root,
-                                 "kind": "resonance" if root == "pole" else "anti_resonance", "number": 0,
-                                 "frequency_hz": abs(value) / (2 * np.pi), "damping_ratio": float(damping_ratio(value)),
-                                 "frequency_std_hz": np.nan, "damping_std": np.nan, "modal_constant": constant})
-    return pd.DataFrame(rows)
+    return reference_features(Plant(machine), SAME_PLANE, band_hz)
 
 
 def with_effects(machine, *specs):
@@ -40,12 +26,7 @@ def with_effects(machine, *specs):
 
 
 def problem_for(machine, features, **settings):
-    settings = UpdateSettings.from_config(settings)
-    measured = measured_features(features, SAME_PLANE, settings.modes)
-    variables = design_variables(machine, settings.tags, settings.per_element, settings.damping, settings.modes,
-                                 settings.stiffness_bounds, settings.damping_bounds)
-    zero_channels = sorted({(o, i) for o, i, r in zip(measured["output"], measured["input"], measured["root"]) if r == "zero"})
-    return UpdateProblem(ModalFeatureModel(machine, variables, zero_channels), measured, settings)
+    return update_problem(machine, features, UpdateSettings.from_config(settings))
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +39,7 @@ class TestThesisDemonstration:
     """Thesis ch. 5.3 on demo20: four design elements, randomized starts, beyond the thesis with three modes."""
 
     def test_moduli_recovered_from_random_starts(self, demo_machine, thesis_reference):
-        problem = problem_for(demo_machine, reference_features(thesis_reference, 3500.0), tags=["design"], modes=3,
+        problem = problem_for(demo_machine, features_of(thesis_reference, 3500.0), tags=["design"], modes=3,
                               damping="none", starts=6, seed=11)
         result = update_model(problem, problem.settings)
         moduli = 200.0 * result.values
@@ -74,7 +55,7 @@ class TestThesisDemonstration:
 
     def test_first_mode_alone_does_not_determine_four_moduli(self, demo_machine, thesis_reference):
         """The thesis' own feature set: what it cannot determine is flagged, not believed (thesis Fig. 6.8)."""
-        problem = problem_for(demo_machine, reference_features(thesis_reference, 1000.0), tags=["design"], modes=1,
+        problem = problem_for(demo_machine, features_of(thesis_reference, 1000.0), tags=["design"], modes=1,
                               damping="none", starts=2)
         result = update_model(problem, problem.settings)
         table = pd.DataFrame(comparison_rows(problem, problem.start, result.values))
@@ -91,7 +72,7 @@ def test_damping_and_group_moduli_recovered(hs_machine):
                          {"name": "element_stiffness", "parameters": {"tag": "de_amb", "scale": 0.55}},
                          {"name": "element_stiffness", "parameters": {"tag": "nde_amb", "scale": 0.75}},
                          {"name": "modal_damping", "parameters": {"damping_ratio": 0.008}})
-    problem = problem_for(hs_machine, reference_features(truth, 3000.0), tags=["de_amb", "nde_amb"], per_element=False,
+    problem = problem_for(hs_machine, features_of(truth, 3000.0), tags=["de_amb", "nde_amb"], per_element=False,
                           modes=2, damping="common", starts=3)
     result = update_model(problem, problem.settings)
     np.testing.assert_allclose(result.values, [0.55, 0.75, 0.008], rtol=1e-3)
@@ -99,7 +80,7 @@ def test_damping_and_group_moduli_recovered(hs_machine):
 
 def test_modes_are_matched_by_proximity_not_index(demo_machine, thesis_reference):
     """Only the second mode measured: it is matched to the model's second mode, not its first."""
-    features = reference_features(thesis_reference, 3500.0)
+    features = features_of(thesis_reference, 3500.0)
     second = features[(features["frequency_hz"] > 1000) & (features["frequency_hz"] < 2000)]
     problem = problem_for(demo_machine, second, tags=["design"], per_element=False, modes=1, damping="none", starts=1)
     frequency, _, _, _ = problem.predict(problem.start)
@@ -107,7 +88,7 @@ def test_modes_are_matched_by_proximity_not_index(demo_machine, thesis_reference
 
 
 def test_nelder_mead_baseline_reduces_the_thesis_objective(demo_machine, thesis_reference):
-    problem = problem_for(demo_machine, reference_features(thesis_reference, 3500.0), tags=["design"], modes=3,
+    problem = problem_for(demo_machine, features_of(thesis_reference, 3500.0), tags=["design"], modes=3,
                           damping="none")
     start = problem.random_start(np.random.default_rng(5))
     values, evaluations = nelder_mead_update(problem, start)  # thesis: MaxIter 1000, MaxFunEvals 2500
@@ -115,14 +96,14 @@ def test_nelder_mead_baseline_reduces_the_thesis_objective(demo_machine, thesis_
 
 
 def test_updated_machine_reproduces_the_matched_features(demo_machine, demo_config, thesis_reference):
-    problem = problem_for(demo_machine, reference_features(thesis_reference, 3500.0), tags=["design"], modes=3,
+    problem = problem_for(demo_machine, features_of(thesis_reference, 3500.0), tags=["design"], modes=3,
                           damping="common", starts=2, seed=1)
     result = update_model(problem, problem.settings)
     config = updated_machine_config(demo_config, problem.variables, result.values)
     entries = {e["name"]: e["parameters"] for e in config["effects"]}
     assert entries["element_stiffness"]["tag"] == "design" and len(entries["element_stiffness"]["scale"]) == 4
     rebuilt = machine_from_config(config)
-    again = problem_for(rebuilt, reference_features(thesis_reference, 3500.0), tags=["design"], modes=3, damping="common")
+    again = problem_for(rebuilt, features_of(thesis_reference, 3500.0), tags=["design"], modes=3, damping="common")
     f_updated, z_updated, _, _ = problem.predict(result.values)
     f_rebuilt, z_rebuilt, _, _ = again.predict(again.start)
     np.testing.assert_allclose(f_rebuilt, f_updated, rtol=1e-6)

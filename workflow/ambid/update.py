@@ -28,10 +28,13 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 
+from .channel_fit import select_channels
 from .errors import AmbidError, settings_from_mapping
-from .modal_features import LIGHT_DAMPING, root_feature_derivatives, root_features
+from .modal_features import LIGHT_DAMPING, ModalFeatureModel, design_variables, root_feature_derivatives, root_features
+from .plant import damping_ratio
 
-__all__ = ["UpdateSettings", "UpdateError", "UpdateProblem", "UpdateResult", "measured_features", "update_model",
+__all__ = ["UpdateSettings", "UpdateError", "UpdateProblem", "UpdateResult", "measured_features", "reference_features",
+           "update_channels", "update_problem", "update_model",
            "least_squares_update", "nelder_mead_update", "identifiability", "comparison_rows", "updated_machine_config"]
 
 THESIS_INDEX = {"NX": 1, "NY": 2, "DX": 3, "DY": 4}  # thesis Table 5.1
@@ -106,6 +109,49 @@ def measured_features(frame, channels, modes):
     if rows.empty:
         raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)}")
     return rows[columns].reset_index(drop=True)
+
+
+def reference_features(plant, channels, band_hz):
+    """The features of a plant known exactly, in the fit stage's table form (thesis ch. 5.3's reference model).
+
+    Every lightly damped pole and zero below ``band_hz`` of each channel, with
+    the modal constant of the poles; for model-to-model updates and their tests.
+    """
+    rows = []
+    for output, input_axis in channels:
+        poles, residues = plant.channel_residues(output, input_axis)
+        for root, values, residue in (("pole", poles, residues), ("zero", plant.zeros(output, input_axis), None)):
+            for k, value in enumerate(values):
+                if value.imag > 0 and damping_ratio(value) < LIGHT_DAMPING and abs(value) < 2 * np.pi * band_hz:
+                    rows.append({"output": output, "input": input_axis, "estimator": "output_error", "root": root,
+                                 "kind": "resonance" if root == "pole" else "anti_resonance", "number": 0,
+                                 "frequency_hz": abs(value) / (2 * np.pi), "damping_ratio": float(damping_ratio(value)),
+                                 "frequency_std_hz": np.nan, "damping_std": np.nan,
+                                 "modal_constant": np.real(2j * value.imag * residue[k]) if residue is not None else np.nan})
+    return pd.DataFrame(rows)
+
+
+def update_channels(kind):
+    """The radial channels of ``kind`` (`ambid.channel_fit.select_channels`) whose features the update matches.
+
+    At standstill the x and y planes do not couple, so channels across planes have no features.
+    """
+    return [(o, i) for o, i in select_channels(kind) if o[1] == i[1]]
+
+
+def update_problem(machine, features, settings, channels=None):
+    """The `UpdateProblem` of a machine against fit-stage features, as ``settings`` configure it.
+
+    ``channels`` defaults to ``update_channels(settings.channels)``; zeros are
+    computed only for the channels with a measured anti-resonance.
+    """
+    channels = update_channels(settings.channels) if channels is None else channels
+    measured = measured_features(features, channels, settings.modes)
+    variables = design_variables(machine, settings.tags, settings.per_element, settings.damping, settings.modes,
+                                 settings.stiffness_bounds, settings.damping_bounds)
+    zero_channels = sorted({(o, i) for o, i, root in zip(measured["output"], measured["input"], measured["root"])
+                            if root == "zero"})
+    return UpdateProblem(ModalFeatureModel(machine, variables, zero_channels), measured, settings)
 
 
 class UpdateProblem:

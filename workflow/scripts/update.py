@@ -7,16 +7,14 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ambid.channel_fit import select_channels
+from ambid.compare import model_channels
 from ambid.frf import channel
 from ambid.io import atomic_path, read_parquet, write_parquet, write_tsv
-from ambid.loop import zero_order_hold
-from ambid.machine import RADIAL_AXES, machine_from_config
-from ambid.modal_features import ModalFeatureModel, design_variables
+from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
-from ambid.update import (UpdateProblem, UpdateSettings, comparison_rows, identifiability, measured_features,
-                          update_model, updated_machine_config)
+from ambid.update import (UpdateSettings, comparison_rows, identifiability, update_channels, update_model,
+                          update_problem, updated_machine_config)
 
 sys.stderr = open(snakemake.log[0], "w")
 logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
@@ -27,17 +25,13 @@ settings = UpdateSettings.from_config(snakemake.params.settings, snakemake.param
 machine_config = snakemake.params.machine_config
 machine = machine_from_config(machine_config, name=machine_name, source=snakemake.input.machine)
 features, _ = read_parquet(snakemake.input.features, kind="fit_features")
-channels = [(o, i) for o, i in select_channels(settings.channels) if o[1] == i[1]]  # the planes do not couple
-measured = measured_features(features, channels, settings.modes)
-variables = design_variables(machine, settings.tags, settings.per_element, settings.damping, settings.modes,
-                             settings.stiffness_bounds, settings.damping_bounds)
-zero_channels = sorted({(o, i) for o, i, root in zip(measured["output"], measured["input"], measured["root"]) if root == "zero"})
-model = ModalFeatureModel(machine, variables, zero_channels)
-problem = UpdateProblem(model, measured, settings)
+problem = update_problem(machine, features, settings)
+measured, variables, model = problem.measured, problem.variables, problem.model
 log.info("%d measured features of %d channels, %d design variables, optimizer %s, %d starts", len(measured),
          len(set(zip(measured["output"], measured["input"]))), len(variables), settings.optimizer, settings.starts)
 result = update_model(problem, settings)
-log.info("B(e) %.4g -> %.4g after %d evaluations; starts:\n%s", problem.objective(problem.start), result.objective,
+original_b = problem.objective(problem.start)
+log.info("B(e) %.4g -> %.4g after %d evaluations; starts:\n%s", original_b, result.objective,
          result.evaluations, result.starts.to_string(index=False))
 rows, correlation, summary = identifiability(problem, result.values)
 log.info("identifiability: %d of %d variable directions determined; singular values %s", summary["rank"], len(variables),
@@ -74,7 +68,7 @@ undetermined = [v.name for v, r in zip(variables, rows) if not r["determined"]]
 updated_config = updated_machine_config(machine_config, variables, result.values)
 updated_machine = machine_from_config(updated_config, name=machine_name, source=snakemake.output.machine)
 header = (f"# {machine_name} updated by ambid (rule update, thesis ch. 5.2) from the features of run {run}.\n"
-          f"# B(e) (eq. 5.35): {problem.objective(problem.start):.4g} -> {result.objective:.4g}.  The 'effects' below carry the\n"
+          f"# B(e) (eq. 5.35): {original_b:.4g} -> {result.objective:.4g}.  The 'effects' below carry the\n"
           f"# updated moduli and damping; use this file as a machine model (config.yaml: machines.<name>.model).\n")
 if undetermined:
     header += f"# Not determined by the data (values arbitrary within their bounds): {', '.join(undetermined)}.\n"
@@ -85,15 +79,15 @@ with atomic_path(snakemake.output.machine) as temporary:
 frf, _ = read_parquet(snakemake.input.frf, kind="frf")
 estimator = "mimo" if (frf["estimator"] == "mimo").any() else "siso"
 plants = {"original model": Plant(machine), "updated model": Plant(updated_machine)}
+channels = update_channels(settings.channels)
 panels, overlays = [], []
 for output, input_axis in [(o, i) for o, i in channels if o[1] == "X"]:
     frequency, values, std = channel(frf, estimator, output, input_axis)
     if frequency.size == 0:
         continue
-    hold = zero_order_hold(frequency, machine.sample_time_s)
-    k, j = RADIAL_AXES.index(output), RADIAL_AXES.index(input_axis)
     panels.append((f"{output}/{input_axis}", frequency, values, std))
-    overlays.append({name: plant.radial_frequency_response(frequency)[:, k, j] * hold for name, plant in plants.items()})
+    overlays.append({name: model_channels(plant, frequency, [(output, input_axis)])[(output, input_axis)]
+                     for name, plant in plants.items()})
 title = f"{machine_name} {run}"
 save_figure(bode_measured(panels, f"{title}: measured, original and updated model", fits=overlays), snakemake.output.bode,
             snakemake.params.dpi)
