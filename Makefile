@@ -45,6 +45,7 @@ bench: $(STAMP) $(ROSS_STAMP)
 	$(BIN)/python benchmarks/bench_identification.py
 	$(BIN)/python benchmarks/bench_fit.py
 	$(BIN)/python benchmarks/bench_update.py
+	$(BIN)/python benchmarks/bench_diagnose.py
 
 clean:
 	rm -rf results logs .snakemake

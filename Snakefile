@@ -18,6 +18,7 @@ include: "rules/calibrate.smk"
 include: "rules/frf.smk"
 include: "rules/fit.smk"
 include: "rules/update.smk"
+include: "rules/diagnose.smk"
 
 
 rule all:

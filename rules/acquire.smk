@@ -3,7 +3,9 @@
 
 
 rule acquire_identification:
+    # centred on the magnetic center its calibration run found (thesis ch. 6), when the run names one
     input:
+        unpack(identification_center),
         machine=machine_model_file,
         rig=rig_file,
     wildcard_constraints:

@@ -10,11 +10,11 @@ from ambid.calibration import calibration_settings_from_config
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
 from ambid.machine import machine_from_config
+from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
+from ambid.variants import NOMINAL, variant_chain
 
 validate(config, schema="../workflow/schemas/config.schema.yaml")
-
-MODEL_VARIANTS = ["nominal"]
 
 
 def load_machine_config(name):
@@ -63,6 +63,41 @@ RUNS = {
 RIG_CONFIGS = {
     machine: load_rig_config(machine) for machine in {m for (m, _), spec in RUNS.items() if spec["source"] == "rig"}
 }
+
+
+def variants_of(machine):
+    """Model variants of a machine: nominal first, then the configured ones."""
+    return [NOMINAL] + list(config["machines"][machine].get("variants") or {})
+
+
+def check_variants(machine):
+    """Every variant's chain, effects and update run are consistent; raise naming the key at fault."""
+    entry = config["machines"][machine]
+    variants = entry.get("variants") or {}
+    nominal = machine_from_config(MACHINE_CONFIGS[machine], name=machine)
+    for name in variants:
+        for step, spec in variant_chain(variants, name, f"machines.{machine}.variants"):
+            path = f"machines.{machine}.variants.{step}"
+            for i, effect in enumerate(spec.get("effects") or ()):
+                try:
+                    effect_from_config(effect, f"effects[{i}]", nominal)
+                except ConfigError as error:
+                    raise error.within(path) from None
+            run = spec.get("update")
+            if run is not None and (RUNS.get((machine, run), {}).get("kind") != "identification" or not entry.get("update")):
+                raise ConfigError(f"{path}.update", f"needs an identification run of {machine} and machines.{machine}.update")
+    cal = entry.get("operating_point")
+    if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
+        raise ConfigError(f"machines.{machine}.operating_point", f"{cal!r} is not a calibration run of {machine}")
+    for run, spec in (entry.get("runs") or {}).items():
+        cal = spec.get("calibration")
+        if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
+            raise ConfigError(f"machines.{machine}.runs.{run}.calibration", f"{cal!r} is not a calibration run of {machine}")
+
+
+for _machine in config["machines"]:
+    check_variants(_machine)
+MODEL_VARIANTS = sorted({v for m in config["machines"] for v in variants_of(m)})
 IDENTIFICATION_SETTINGS = settings_from_config(config["identification"])
 CALIBRATION_SETTINGS = calibration_settings_from_config(config["calibration"])
 
@@ -105,6 +140,30 @@ def run_seed(wildcards):
     return RUNS[(wildcards.machine, wildcards.run)].get("seed", 0)
 
 
+def variant_steps(wildcards):
+    """The variant's chain as the variant rule's param: name, effects and update run of each step."""
+    variants = config["machines"][wildcards.machine].get("variants") or {}
+    return [{"name": name, "effects": spec.get("effects") or [], "update": spec.get("update")}
+            for name, spec in variant_chain(variants, wildcards.variant, f"machines.{wildcards.machine}.variants")]
+
+
+def variant_inputs(wildcards):
+    """Machine file, the calibration's operating point and the updates the variant takes."""
+    entry = config["machines"][wildcards.machine]
+    inputs = {"machine": entry["model"]}
+    if entry.get("operating_point"):
+        inputs["operating_point"] = f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
+    inputs["updates"] = [f"results/{wildcards.machine}/update/{step['update']}/machine.yaml"
+                         for step in variant_steps(wildcards) if step["update"]]
+    return inputs
+
+
+def identification_center(wildcards):
+    """The magnetic center table an identification run is centred on (its ``calibration`` run), if any."""
+    cal = RUNS[(wildcards.machine, wildcards.run)].get("calibration")
+    return {"center": f"results/{wildcards.machine}/calibration/{cal}/magnetic_center.tsv"} if cal else {}
+
+
 def thesis_m_runs():
     """Runs whose raw log is a user's thesis-style .m file (converted by rule import_thesis_m)."""
     return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") == "m"]
@@ -123,6 +182,20 @@ CALIBRATION_OUTPUTS = [
     "operating_point.yaml",
     "figures/convergence.png",
 ]
+
+
+MODEL_OUTPUTS = [
+    "machine.yaml",
+    "modes.tsv",
+    "plant_frf.parquet",
+    "stability.tsv",
+    "figures/plant_bode.png",
+    "figures/axial_bode.png",
+    "figures/mode_shapes.png",
+]
+COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
+DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]
+LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
 
 
 UPDATE_OUTPUTS = [
@@ -166,15 +239,23 @@ def all_outputs():
         if config["machines"][machine].get("update")
         for name in UPDATE_OUTPUTS
     ]
-    return acquired + calibration + sensitivity + frfs + fits + updates + expand(
-        [
-            "results/{machine}/model/{variant}/modes.tsv",
-            "results/{machine}/model/{variant}/plant_frf.parquet",
-            "results/{machine}/model/{variant}/stability.tsv",
-            "results/{machine}/model/{variant}/figures/plant_bode.png",
-            "results/{machine}/model/{variant}/figures/axial_bode.png",
-            "results/{machine}/model/{variant}/figures/mode_shapes.png",
-        ],
-        machine=MACHINE_CONFIGS,
-        variant=MODEL_VARIANTS,
-    )
+    models = [
+        f"results/{machine}/model/{variant}/{name}"
+        for machine in MACHINE_CONFIGS
+        for variant in variants_of(machine)
+        for name in MODEL_OUTPUTS
+    ]
+    diagnosis = [
+        f"results/{machine}/{stage}/{run}/{variant}/{name}"
+        for machine, run in runs_of("identification")
+        for variant in variants_of(machine)
+        for stage, names in (("compare", COMPARE_OUTPUTS), ("diagnose", DIAGNOSE_OUTPUTS))
+        for name in names
+    ]
+    ledgers = [f"results/{machine}/ledger/{name}" for machine in MACHINE_CONFIGS if runs_of_machine(machine)
+               for name in LEDGER_OUTPUTS]
+    return acquired + calibration + sensitivity + frfs + fits + updates + models + diagnosis + ledgers
+
+
+def runs_of_machine(machine, kind="identification"):
+    return [run for m, run in runs_of(kind) if m == machine]

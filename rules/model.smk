@@ -1,9 +1,28 @@
-# Stage "model": the nominal model of each machine (mode table, plant FRF, stability, figures).
+# Stage "model": each model variant of a machine (its machine config, mode table, plant FRF, stability, figures).
+
+
+rule variant:
+    # a variant's machine config: the machine file, the calibrated operating point, added effects, updates
+    input:
+        unpack(variant_inputs),
+    output:
+        machine="results/{machine}/model/{variant}/machine.yaml",
+    params:
+        machine_config=machine_config,
+        steps=variant_steps,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/variant_{variant}.log",
+    benchmark:
+        "logs/{machine}/variant_{variant}.benchmark.tsv"
+    threads: 1
+    script:
+        "../workflow/scripts/variant.py"
 
 
 rule model:
     input:
-        machine=machine_model_file,
+        machine="results/{machine}/model/{variant}/machine.yaml",
     output:
         modes="results/{machine}/model/{variant}/modes.tsv",
         frf="results/{machine}/model/{variant}/plant_frf.parquet",
@@ -27,7 +46,6 @@ rule model:
             subcategory="{machine}",
         ),
     params:
-        machine_config=machine_config,
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
     log:

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
@@ -143,12 +144,14 @@ def test_real_logs_in_thesis_m_format(workdir):
     write_thesis_m(identification_frame(steps), run / "identification.m")
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["machines"]["demo20"]["runs"] = {"thesis01": {"kind": "identification", "source": "data", "format": "m"}}
+    for key in ("variants", "operating_point"):  # they name the rig runs dropped here
+        config["machines"]["demo20"].pop(key)
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
     result = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet")
     assert result.returncode == 0, result.stderr[-3000:]
     assert "rule import_thesis_m" in result.stdout + result.stderr and "acquire_identification" not in result.stdout + result.stderr
     frame, _ = read_parquet(workdir / "results/demo20/frf/thesis01/frf.parquet", kind="frf")
-    assert set(frame["estimator"]) == {"siso", "mimo"}
+    assert set(frame["estimator"]) == {"siso", "mimo", "current"}
 
 
 def test_unknown_top_level_key_is_rejected(workdir):
@@ -230,7 +233,8 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
             coefficients[CHANNELS.index(f"U2_{axis}")] = 1.0
             for out, values in response.items():
                 coefficients[CHANNELS.index(f"V2_{out}")] = values[k] * (1 + 1e-4 * rng.standard_normal())
-            coefficients[CHANNELS.index(f"I_upper_{axis}")] = coefficients[CHANNELS.index(f"I_lower_{axis}")] = 0.5
+            coefficients[CHANNELS.index(f"I_upper_{axis}")] = 1.5  # coil current (upper - lower) / 2 = U2: no amplifier lag
+            coefficients[CHANNELS.index(f"I_lower_{axis}")] = -0.5
             noise = np.abs(coefficients) * 1e-4 + 1e-12
             steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 1.0, "attempts": 1,
                           "coefficients": coefficients, "noise_std": noise})
@@ -240,6 +244,8 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["machines"] = {"demo20": {**config["machines"]["demo20"], "runs": {"user01": {"kind": "identification",
                                                                                        "source": "data"}}}}
+    config["machines"]["demo20"].pop("operating_point")
+    config["machines"]["demo20"]["variants"] = {"updated": {"update": "user01"}}
     config["update"]["starts"] = 3
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
     base = workdir / "results/demo20/update/user01"
@@ -256,3 +262,13 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     machine_from_config(updated)
     for figure in ("bode_update", "youngs_modulus", "convergence"):
         assert (base / f"figures/{figure}.png").stat().st_size > 10_000
+    # the diagnosis loop on the same user log: the nominal model lacks the design group's stiffness, the
+    # updated variant (the update's moduli) explains the measurement far better
+    result = snakemake(workdir, "results/demo20/diagnose/user01/nominal/diagnosis.md", "results/demo20/ledger/ledger.tsv")
+    assert result.returncode == 0, result.stderr[-3000:]
+    candidates = pd.read_csv(workdir / "results/demo20/diagnose/user01/nominal/candidates.tsv", sep="\t")
+    assert candidates.loc[0, "candidate"] == "element_stiffness[design]" and bool(candidates.loc[0, "significant"])
+    text = (workdir / "results/demo20/diagnose/user01/nominal/diagnosis.md").read_text()
+    assert "**Missing: `element_stiffness[design]`**" in text and "name: element_stiffness" in text
+    ledger = pd.read_csv(workdir / "results/demo20/ledger/ledger.tsv", sep="\t").set_index(["variant", "output"])
+    assert ledger.loc[("updated", "all"), "excess"] < 0.01 * ledger.loc[("nominal", "all"), "excess"]

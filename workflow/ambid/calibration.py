@@ -33,6 +33,7 @@ from .bearing import force
 from .errors import ConfigError, LogError, settings_from_mapping
 from .io import read_parquet, write_parquet
 from .machine import ALL_AXES, RADIAL_AXES
+from .logs import CHANNELS
 
 __all__ = [
     "CalibrationSettings",
@@ -183,9 +184,9 @@ def run_calibration(rig_model, method_axes, settings, seed=0, current_offset_a=0
             if cycle >= settle:
                 total += channels
         mean = total / average
-        upper = mean[10 + np.array(radial)].T + np.repeat(extra, n_levels, axis=0)  # (members, 4)
-        lower = mean[15 + np.array(radial)].T
-        position = mean[5 + np.array(radial)].T
+        upper = mean[[CHANNELS.index(f"I_upper_{ALL_AXES[a]}") for a in radial]].T + np.repeat(extra, n_levels, axis=0)
+        lower = mean[[CHANNELS.index(f"I_lower_{ALL_AXES[a]}") for a in radial]].T  # (members, 4)
+        position = mean[[CHANNELS.index(f"V2_{ALL_AXES[a]}") for a in radial]].T
         offsets = np.full((n_rep, len(radial)), np.nan)
         for rep in np.flatnonzero(active):
             block = slice(rep * n_levels, (rep + 1) * n_levels)

@@ -1,9 +1,17 @@
 """Model against measurement: FRF errors per channel, frequency and band, weighted by the measurement uncertainty.
 
-For every measured channel ``G_meas(f)`` with standard uncertainty ``sigma(f)``
-(the complex standard deviation of the ETFE, ``E|n|^2 = sigma^2``) and the
-model's ``G_model(f)`` (structural plant with its effects, times the digital
-loop's zero-order hold, as the measurement sees it):
+The channels compared are every one the identification logged
+(`measured_channels`): the radial plant matrix (MIMO, or SISO diagonal when
+only SISO runs exist), the axial plant and the coil-current responses
+``I_<axis>`` (commanded -> measured coil current, the amplifier alone).
+
+For every channel ``G_meas(f)`` with standard uncertainty ``sigma(f)`` (the
+complex standard deviation of the ETFE, ``E|n|^2 = sigma^2``, inflated by a
+relative floor for what the noise does not cover: the stepped sine's amplitude
+nonlinearity and the sampled-data approximation, ``sqrt(sigma^2 + (floor
+|G_meas|)^2)``) and the model's ``G_model(f)`` (`model_response`: structural
+plant with its effects times the digital loop's zero-order hold, as the
+measurement sees it):
 
 * ``magnitude_error_db = 20 log10 |G_model / G_meas|``
 * ``phase_error_deg = angle(G_model / G_meas)`` in (-180, 180]
@@ -18,17 +26,113 @@ magnitude and phase errors.  This is the "compare" step of the diagnosis loop.
 import numpy as np
 import pandas as pd
 
+from .effects import COIL_CURRENT_EFFECTS, series_state_space
 from .errors import AmbidError
+from .frf import channel
 from .loop import zero_order_hold
-from .machine import RADIAL_AXES
+from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
+from .plant import zoh_discretize
 
-__all__ = ["CompareError", "model_channels", "channel_errors", "summarize", "DEFAULT_BANDS_HZ"]
+__all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
+           "current_channel", "DEFAULT_BANDS_HZ"]
 
 DEFAULT_BANDS_HZ = (0.0, 10.0, 100.0, 300.0, 1000.0, np.inf)
 
 
 class CompareError(AmbidError):
     """A comparison that cannot be made (no common channel, no usable uncertainty)."""
+
+
+def current_channel(axis):
+    """Name of the coil-current output of an axis in the comparison (``I_DX``)."""
+    return f"I_{axis}"
+
+
+def measured_channels(table, position_floor=0.0, current_floor=0.0):
+    """Every logged channel of an FRF table, with the uncertainty the comparison uses.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        `ambid.frf.frf_table` of one run.
+    position_floor, current_floor : float
+        Systematic relative uncertainty added in quadrature to the ETFE's noise
+        of the position (plant) and coil-current channels.  The plant's covers
+        the force law's nonlinearity at the stepped sine's amplitudes and the
+        sampled-data approximation of `model_response` (about 1-2 %, measured on
+        a rig whose model is exact); the coil currents are linear and modelled
+        exactly, so theirs can be ten times smaller.
+
+    Returns
+    -------
+    dict
+        ``(output, input) -> (frequency_hz, values, std)``: the radial matrix
+        (MIMO when logged, else the SISO diagonal), ``("Z", "Z")`` and
+        ``("I_<axis>", axis)`` for the coil currents.
+    """
+    if position_floor < 0 or current_floor < 0:
+        raise CompareError(f"relative floors must be >= 0, got {position_floor}, {current_floor}")
+    estimators = set(table["estimator"])
+    radial = "mimo" if "mimo" in estimators else "siso"
+    pairs = {(o, i) for o, i in table.loc[table["estimator"] == radial, ["output", "input"]].itertuples(index=False)}
+    wanted = [(radial, o, i) for o in RADIAL_AXES for i in RADIAL_AXES if (o, i) in pairs and (radial == "mimo" or o == i)]
+    siso_pairs = set(table.loc[table["estimator"] == "siso", ["output", "input"]].itertuples(index=False, name=None))
+    if (AXIAL_AXIS, AXIAL_AXIS) in siso_pairs:
+        wanted.append(("siso", AXIAL_AXIS, AXIAL_AXIS))
+    current_pairs = set(table.loc[table["estimator"] == "current", ["output", "input"]].itertuples(index=False, name=None))
+    wanted += [("current", a, a) for a in ALL_AXES if (a, a) in current_pairs]
+    out = {}
+    for estimator, output, input_axis in wanted:
+        frequency, values, std = channel(table, estimator, output, input_axis)
+        key = (current_channel(output) if estimator == "current" else output, input_axis)
+        floor = current_floor if estimator == "current" else position_floor
+        out[key] = (frequency, values, np.hypot(std, floor * np.abs(values)))
+    if not out:
+        raise CompareError("the FRF table holds no channel to compare")
+    return out
+
+
+def model_response(plant, channels):
+    """The model's response on each channel of `measured_channels`, as the measurement sees it.
+
+    Positions: the plant's FRF times the zero-order hold (`model_channels`).  Coil
+    currents: the amplifier chain of the axis (the `COIL_CURRENT_EFFECTS`)
+    discretized exactly with the hold, as the rig's sampled current sees the
+    commanded one; 1 without one.
+
+    Parameters
+    ----------
+    plant : ambid.plant.Plant
+    channels : dict
+        ``(output, input) -> (frequency_hz, ...)``; only the frequencies are used.
+    """
+    out = {}
+    radial = [key for key in channels if key[0] in RADIAL_AXES]
+    by_grid = {}
+    for key in radial:
+        by_grid.setdefault(channels[key][0].tobytes(), []).append(key)
+    for keys in by_grid.values():
+        out.update(model_channels(plant, channels[keys[0]][0], keys))
+    if (AXIAL_AXIS, AXIAL_AXIS) in channels and plant.machine.axial_electromagnet is not None:
+        frequency = channels[(AXIAL_AXIS, AXIAL_AXIS)][0]
+        out[(AXIAL_AXIS, AXIAL_AXIS)] = plant.axial_frequency_response(frequency) * zero_order_hold(
+            frequency, plant.machine.sample_time_s)
+    for axis in ALL_AXES:
+        key = (current_channel(axis), axis)
+        if key in channels:
+            out[key] = _sampled_coil_current(plant, axis, channels[key][0])
+    return out
+
+
+def _sampled_coil_current(plant, axis, frequency_hz):
+    a, b, c, d = series_state_space([e.siso_state_space() for e in plant.input_effects
+                                     if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)])
+    if a.shape[0] == 0:
+        return np.full(len(frequency_hz), complex(d[0, 0]))
+    transition, gamma = zoh_discretize(a, b, plant.machine.sample_time_s)
+    z = np.exp(2j * np.pi * np.asarray(frequency_hz) * plant.machine.sample_time_s)
+    resolvent = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - transition, gamma.astype(complex))
+    return (c @ resolvent)[:, 0, 0] + d[0, 0]
 
 
 def model_channels(plant, frequency_hz, channels):
@@ -61,7 +165,9 @@ def channel_errors(measured, model):
             raise CompareError(f"channel {output}/{input_axis}: model and measurement have different frequencies")
         if not np.all(np.isfinite(std)) or np.any(std <= 0):
             raise CompareError(f"channel {output}/{input_axis}: the measurement has no positive, finite uncertainty")
-        ratio = predicted / values
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = predicted / values
+        ratio = np.where(np.isfinite(ratio) & (ratio != 0), ratio, np.nan)  # a channel the model (or data) lacks
         rows.append(pd.DataFrame({"output": output, "input": input_axis, "frequency_hz": frequency,
                                   "magnitude_error_db": 20 * np.log10(np.abs(ratio)),
                                   "phase_error_deg": np.degrees(np.angle(ratio)),

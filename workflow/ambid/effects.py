@@ -29,7 +29,8 @@ import numpy as np
 from .errors import ConfigError
 from .machine import ALL_AXES, Foundation
 
-__all__ = ["Parameter", "Effect", "EFFECTS", "register", "effect_from_config", "split_effects"]
+__all__ = ["Parameter", "Effect", "EFFECTS", "COIL_CURRENT_EFFECTS", "register", "effect_from_config", "split_effects",
+           "series_state_space"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,8 @@ class Parameter:
 
 
 EFFECTS = {}
+#: Input effects that shape the coil current itself (the others act between coil current and force).
+COIL_CURRENT_EFFECTS = ("amplifier_lowpass",)
 
 
 def register(cls):
@@ -369,8 +372,18 @@ class ModalDamping(Effect):
             )
 
     def apply(self, machine):
-        ratios = np.atleast_1d(np.asarray(self.damping_ratio, dtype=float))
-        return replace(machine, added_modal_damping=tuple(ratios.tolist()))
+        """Adds to the damping earlier ``modal_damping`` entries gave (a common value covers every flexible mode)."""
+        new = np.atleast_1d(np.asarray(self.damping_ratio, dtype=float))
+        old = np.asarray(machine.added_modal_damping, dtype=float)
+        if old.size == 0:
+            total = new
+        elif old.size == 1 and new.size == 1:
+            total = old + new
+        else:
+            flexible = machine.retained_modes - 2
+            per_mode = lambda r: np.full(flexible, r[0]) if r.size == 1 else np.pad(r, (0, flexible - r.size))  # noqa: E731
+            total = per_mode(old) + per_mode(new)
+        return replace(machine, added_modal_damping=tuple(total.tolist()))
 
 
 @register
@@ -475,6 +488,18 @@ def _lead_lag_chain(poles, zeros):
         c = c_new[None, :]
         d = (p / z) * d
     return a, b, c, np.array([[d]])
+
+
+def series_state_space(blocks):
+    """SISO series connection of continuous (A, B, C, D) blocks, first block first; none is a unit gain."""
+    a, b, c, d = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.eye(1)
+    for a2, b2, c2, d2 in blocks:
+        n1, n2 = a.shape[0], a2.shape[0]
+        a = np.block([[a, np.zeros((n1, n2))], [b2 @ c, a2]])
+        b = np.vstack([b, b2 @ d])
+        c = np.hstack([d2 @ c, c2])
+        d = d2 @ d
+    return a, b, c, d
 
 
 def split_effects(effects):

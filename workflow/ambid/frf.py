@@ -10,6 +10,11 @@ frequency, ``U`` and ``V`` (4 x 4, column k = the run exciting axis k) give
 ``P = V U^-1``.  Its reliability is the conditioning of U, reported per
 frequency.
 
+Coil currents, beyond the thesis: ``A_i(f) = I_i / U2_i`` of the run exciting
+axis i, with ``I = (I_upper - I_lower) / 2`` the differential coil current.  It
+is the amplifier's response alone (the position sensors never enter it), which
+is what tells an amplifier low-pass from a sensor low-pass or a delay.
+
 Uncertainty: the logged noise of each Fourier coefficient (independent, zero
 mean) propagates to first order, ``dP = (dV - P dU) U^-1``, giving a standard
 deviation per FRF point that later stages use as fit weights.
@@ -22,7 +27,7 @@ from .errors import LogError
 from .logs import CHANNELS
 from .machine import ALL_AXES, RADIAL_AXES
 
-__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "frf_table", "channel"]
+__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "channel"]
 
 
 def log_arrays(frame):
@@ -72,6 +77,27 @@ def siso_etfe(arrays):
     return out
 
 
+def current_etfe(arrays):
+    """Coil-current response of every excited axis: ``I / U2`` [A/A].
+
+    Returns
+    -------
+    dict
+        ``(axis, axis) -> (frequency_hz, A, std)``; ``I = (I_upper - I_lower) / 2``
+        with noise ``sqrt(s_upper^2 + s_lower^2) / 2``, propagated like `siso_etfe`.
+    """
+    out = {}
+    for excited, (frequency, coefficients, noise) in arrays.items():
+        upper, lower = CHANNELS.index(f"I_upper_{excited}"), CHANNELS.index(f"I_lower_{excited}")
+        u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
+        current = 0.5 * (coefficients[:, upper] - coefficients[:, lower])
+        s_current = 0.5 * np.hypot(noise[:, upper], noise[:, lower])
+        ratio = current / u
+        std = np.abs(ratio) * np.sqrt((s_current / np.abs(current)) ** 2 + (su / np.abs(u)) ** 2)
+        out[(excited, excited)] = (frequency, ratio, std)
+    return out
+
+
 def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, source="identification log"):
     """MIMO ETFE ``P = V U^-1`` from the runs exciting each of ``axes``.
 
@@ -111,10 +137,13 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
     return frequency, plant, np.sqrt(variance), np.linalg.cond(inputs)
 
 
-def frf_table(siso, mimo=None, axes=RADIAL_AXES):
-    """Long-format FRF table: ``estimator`` (siso / mimo), ``output``, ``input``, ``frequency_hz``,
-    ``re``, ``im``, ``std`` [m/A], ``condition`` (of U, MIMO only)."""
+def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
+    """Long-format FRF table: ``estimator`` (siso / mimo / current), ``output``, ``input``, ``frequency_hz``,
+    ``re``, ``im``, ``std`` [m/A; A/A for ``current``], ``condition`` (of U, MIMO only)."""
     parts = []
+    for (output, input_axis), (frequency, a, std) in (current or {}).items():
+        parts.append(pd.DataFrame({"estimator": "current", "output": output, "input": input_axis, "frequency_hz": frequency,
+                                   "re": a.real, "im": a.imag, "std": std, "condition": np.nan}))
     for (output, input_axis), (frequency, g, std) in siso.items():
         parts.append(pd.DataFrame({"estimator": "siso", "output": output, "input": input_axis, "frequency_hz": frequency,
                                    "re": g.real, "im": g.imag, "std": std, "condition": np.nan}))

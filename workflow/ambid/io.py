@@ -18,8 +18,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+import yaml
 
-from .errors import AmbidError
+from .errors import AmbidError, ConfigError
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -27,6 +28,9 @@ __all__ = [
     "write_parquet",
     "read_parquet",
     "write_tsv",
+    "read_tsv",
+    "read_yaml",
+    "write_yaml",
     "frf_frame",
     "frf_from_frame",
 ]
@@ -50,6 +54,29 @@ def atomic_path(path):
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def read_tsv(path):
+    """A table written by `write_tsv`."""
+    return pd.read_csv(path, sep="\t")
+
+
+def read_yaml(path):
+    """A YAML mapping from ``path``; `ConfigError` naming the file when it cannot be read or is not a mapping."""
+    try:
+        with open(path) as handle:
+            content = yaml.safe_load(handle)
+    except (OSError, yaml.YAMLError) as error:
+        raise ConfigError("", f"cannot read {path}: {error}", source=str(path)) from None
+    if not isinstance(content, dict):
+        raise ConfigError("", "does not hold a mapping", source=str(path))
+    return content
+
+
+def write_yaml(mapping, path, header=""):
+    """Write a mapping as YAML atomically, after ``header`` comment lines (each starting with '#')."""
+    with atomic_path(path) as temporary:
+        temporary.write_text(header + yaml.safe_dump(mapping, sort_keys=False, width=110))
 
 
 def write_parquet(frame, path, units, kind, metadata=None):

@@ -14,7 +14,8 @@ output-side effects multiply the structural FRF: ``P = Out(jw) H(jw) In(jw)``.
 The axial axis Z is a rigid body on its own bearing.
 """
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import NamedTuple
 
@@ -26,7 +27,7 @@ from .effects import split_effects
 from .errors import ModelError
 from .machine import AXIAL_AXIS, AXIS_LOCATION, BEARINGS, RADIAL_AXES
 
-__all__ = ["Plant", "damping_ratio", "RIGID_MODES"]
+__all__ = ["Plant", "damping_ratio", "zoh_discretize", "RIGID_MODES"]
 
 RIGID_MODES = 2  # translation and tilt of the free-free rotor in each plane
 
@@ -36,6 +37,15 @@ def damping_ratio(poles):
     poles = np.asarray(poles)
     magnitude = np.abs(poles)
     return np.where(magnitude > 0, -poles.real / np.where(magnitude > 0, magnitude, 1.0), 0.0)
+
+
+def zoh_discretize(a, b, time_s):
+    """Exact zero-order-hold discretization ``(Phi, Gamma)`` of ``x' = A x + B u`` over ``time_s``."""
+    n, m = b.shape
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n], augmented[:n, n:] = a, b
+    transition = scipy.linalg.expm(augmented * time_s)
+    return transition[:n, :n], transition[:n, n:]
 
 
 @dataclass(frozen=True)
@@ -92,6 +102,26 @@ class Plant:
         self.rotor = machine.rotor
         self.modes = self.rotor.planar_modes(machine.retained_modes)
         self.radial = self._radial_model()
+
+    def with_signal_effects(self, effects):
+        """A copy with input- and output-side ``effects`` added, sharing the structural model.
+
+        Cheap: what the diagnosis uses to try an amplifier, sensor or delay on a model.
+        """
+        structure, inputs, outputs = split_effects(effects)
+        if structure:
+            raise ModelError(f"structure effects change the modal model: build a new Plant ({structure[0].name})")
+        plant = copy.copy(self)
+        plant.input_effects = list(self.input_effects) + inputs
+        plant.output_effects = list(self.output_effects) + outputs
+        return plant
+
+    def at_speed(self, speed_rad_s):
+        """A copy spinning at ``speed_rad_s`` (what the ``gyroscopic`` effect does), sharing the modal model."""
+        plant = copy.copy(self)
+        plant.machine = replace(self.machine, speed_rad_s=float(speed_rad_s))
+        plant.radial = replace(self.radial, speed_rad_s=float(speed_rad_s))
+        return plant
 
     # ------------------------------------------------------------------ model
     def _modal_damping(self):
@@ -377,11 +407,8 @@ class ClosedLoop(NamedTuple):
 
 def _sampled_closed_loop(a, b, c, controllers):
     sample_time = controllers[0].sample_time_s
-    n, m = b.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = a, b
-    transition = scipy.linalg.expm(augmented * sample_time)
-    ad, bd = transition[:n, :n], transition[:n, n:]
+    n = a.shape[0]
+    ad, bd = zoh_discretize(a, b, sample_time)
     blocks = [ctrl.discrete_state_space() for ctrl in controllers]
     ac = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
     bc = scipy.linalg.block_diag(*[blk[1] for blk in blocks])

@@ -5,6 +5,7 @@ version) so the same inputs give byte-identical files.
 """
 
 import matplotlib
+import matplotlib.colors
 import matplotlib.ticker
 
 matplotlib.use("Agg")
@@ -15,7 +16,8 @@ import numpy as np  # noqa: E402
 from .io import atomic_path  # noqa: E402
 
 __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
-           "calibration_convergence", "youngs_modulus", "update_convergence", "save_figure"]
+           "calibration_convergence", "youngs_modulus", "update_convergence", "bode_compare", "error_map",
+           "residual_fingerprint", "ledger", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -261,6 +263,119 @@ def update_convergence(history, chosen_start, title):
     axis.set_ylabel("B(e) (eq. 5.35)")
     axis.grid(True, which="both", alpha=0.3)
     axis.legend(fontsize=7)
+    axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def _channel_label(key):
+    output, input_axis = key
+    return f"{output} / U2_{input_axis}" if output.startswith("I_") else f"{output} / {input_axis}"
+
+
+def bode_compare(measured, models, channels, title):
+    """Measured channels with their uncertainty band beside one or more models' responses.
+
+    Parameters
+    ----------
+    measured : dict (output, input) -> (frequency_hz, values, std)
+    models : dict label -> {(output, input): values}
+    channels : list of (output, input), one row of (magnitude, phase) each
+    """
+    figure, axes = plt.subplots(len(channels), 2, figsize=(11, 2.1 * len(channels) + 0.8), squeeze=False)
+    for row, key in enumerate(channels):
+        frequency, values, std = measured[key]
+        unit = "A/A" if key[0].startswith("I_") else "m/A"
+        magnitude, phase = axes[row]
+        magnitude.fill_between(frequency, np.maximum(np.abs(values) - 2 * std, 1e-3 * np.abs(values)), np.abs(values) + 2 * std,
+                               color="0.8", label="measured +-2 sigma")
+        magnitude.semilogy(frequency, np.abs(values), "k.", ms=2.5, label="measured")
+        band_deg = np.degrees(np.minimum(2 * std / np.maximum(np.abs(values), 1e-300), np.pi))
+        measured_phase = np.degrees(np.angle(values))
+        phase.fill_between(frequency, measured_phase - band_deg, measured_phase + band_deg, color="0.8")
+        phase.plot(frequency, measured_phase, "k.", ms=2.5)
+        for label, response in models.items():
+            if key in response:
+                magnitude.semilogy(frequency, np.abs(response[key]), lw=1.2, label=label)
+                phase.plot(frequency, np.degrees(np.angle(response[key])), lw=1.2)
+        magnitude.set_ylabel(f"|{_channel_label(key)}| [{unit}]", fontsize=8)
+        phase.set_ylabel("phase [deg]")
+        phase.set_ylim(-190, 190)
+        phase.set_yticks([-180, -90, 0, 90, 180])
+        for axis in (magnitude, phase):
+            axis.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    for axis in axes[-1]:
+        axis.set_xlabel("frequency [Hz]")
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def error_map(errors, title):
+    """Channel x frequency map of the normalized error |G_model - G_meas| / sigma (log colour scale)."""
+    channels = list(dict.fromkeys(zip(errors["output"], errors["input"])))
+    figure, axis = plt.subplots(figsize=(10, 0.32 * len(channels) + 1.8))
+    norm = matplotlib.colors.LogNorm(vmin=0.1, vmax=max(10.0, float(errors["normalized_error"].max())))
+    image = None
+    for row, (output, input_axis) in enumerate(channels):
+        part = errors[(errors["output"] == output) & (errors["input"] == input_axis)].sort_values("frequency_hz")
+        frequency = part["frequency_hz"].to_numpy()
+        edges = np.concatenate([[frequency[0]], 0.5 * (frequency[1:] + frequency[:-1]), [frequency[-1]]])
+        image = axis.pcolormesh(edges, [row - 0.5, row + 0.5], np.maximum(part["normalized_error"].to_numpy(), 0.1)[None, :],
+                                norm=norm, cmap="magma_r", shading="flat")
+    axis.set_yticks(range(len(channels)))
+    axis.set_yticklabels([_channel_label(c) for c in channels], fontsize=7)
+    axis.invert_yaxis()
+    axis.set_xlabel("frequency [Hz]")
+    figure.colorbar(image, ax=axis, label="|G_model - G_meas| / sigma  (1 = noise floor)")
+    axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def residual_fingerprint(measured, model, predicted, channels, title, candidate_label):
+    """The residual ``G_meas / G_model`` (points) beside what the best candidate predicts, ``G_candidate / G_model``."""
+    figure, axes = plt.subplots(2, len(channels), figsize=(3.0 * len(channels) + 1, 5.4), squeeze=False, sharex="col")
+    for column, key in enumerate(channels):
+        frequency, values, _ = measured[key]
+        ratio = values / model[key]
+        axes[0, column].plot(frequency, 20 * np.log10(np.abs(ratio)), "k.", ms=2.5, label="measured / model")
+        axes[1, column].plot(frequency, np.degrees(np.angle(ratio)), "k.", ms=2.5)
+        if predicted is not None:
+            change = predicted[key] / model[key]
+            axes[0, column].plot(frequency, 20 * np.log10(np.abs(change)), "C3", lw=1.4, label=f"{candidate_label} / model")
+            axes[1, column].plot(frequency, np.degrees(np.angle(change)), "C3", lw=1.4)
+        axes[0, column].set_title(_channel_label(key), fontsize=9)
+        axes[1, column].set_xlabel("frequency [Hz]")
+        for axis in axes[:, column]:
+            axis.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("magnitude ratio [dB]")
+    axes[1, 0].set_ylabel("phase difference [deg]")
+    axes[0, 0].legend(fontsize=7)
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def ledger(table, title):
+    """Excess over the noise floor (chi2 per point - 1) of each model variant, overall and per channel."""
+    variants = list(dict.fromkeys(table["variant"]))
+    figure, axis = plt.subplots(figsize=(max(6.0, 1.6 * len(variants) + 3), 4.6))
+    x = np.arange(len(variants))
+    for run, part in table.groupby("run", sort=False):
+        channels = part[part["output"] != "all"]
+        for (output, input_axis), rows in channels.groupby(["output", "input"], sort=False):
+            rows = rows.set_index("variant").reindex(variants)
+            axis.semilogy(x, np.maximum(rows["excess"], 1e-3), color="0.75", lw=0.7)
+        overall = part[part["output"] == "all"].set_index("variant").reindex(variants)
+        axis.semilogy(x, np.maximum(overall["excess"], 1e-3), "o-", lw=2.2, label=f"{run}: overall")
+    axis.plot([], [], color="0.75", lw=0.7, label="single channels")
+    axis.set_xticks(x)
+    axis.set_xticklabels(variants, rotation=20)
+    axis.set_ylabel("excess over the noise floor (chi2 per point - 1)")
+    axis.grid(True, which="both", alpha=0.3)
+    axis.legend(fontsize=8)
     axis.set_title(title)
     figure.tight_layout()
     return figure

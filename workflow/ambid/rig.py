@@ -30,10 +30,10 @@ import scipy.linalg
 import scipy.optimize
 
 from .bearing import ActuatorAxes, force, force_derivatives
-from .effects import effect_from_config, split_effects
+from .effects import COIL_CURRENT_EFFECTS, effect_from_config, series_state_space, split_effects
 from .errors import ConfigError, ModelError
 from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
-from .plant import Plant
+from .plant import Plant, zoh_discretize
 
 __all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]
 
@@ -127,21 +127,9 @@ def rig_from_config(rig_config, machine_config, source=None):
 
 
 # ----------------------------------------------------------------- state space
-def _series(blocks):
-    """SISO series connection of (A, B, C, D) blocks; an empty chain is a unit gain."""
-    a, b, c, d = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.eye(1)
-    for a2, b2, c2, d2 in blocks:
-        n1, n2 = a.shape[0], a2.shape[0]
-        a = np.block([[a, np.zeros((n1, n2))], [b2 @ c, a2]])
-        b = np.vstack([b, b2 @ d])
-        c = np.hstack([d2 @ c, c2])
-        d = d2 @ d
-    return a, b, c, d
-
-
 def _diagonal_chains(effects, kinds):
     """Block-diagonal MIMO system of per-axis SISO chains over ALL_AXES."""
-    blocks = [_series([e.siso_state_space() for e in effects if e.name in kinds and e.acts_on(axis)]) for axis in ALL_AXES]
+    blocks = [series_state_space([e.siso_state_space() for e in effects if e.name in kinds and e.acts_on(axis)]) for axis in ALL_AXES]
     a = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
     b = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
     c = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
@@ -155,14 +143,6 @@ def _coupling(effects, side):
         if effect.name == "cross_coupling" and effect.side == side:
             matrix = effect.matrix(ALL_AXES) @ matrix
     return matrix
-
-
-def _zoh(a, b, time_s):
-    n, m = b.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = a, b
-    transition = scipy.linalg.expm(augmented * time_s)
-    return transition[:n, :n], transition[:n, n:]
 
 
 @dataclass
@@ -229,7 +209,7 @@ class RigModel:
         self.gravity = np.concatenate([plant.gravity_force(imp.gravity_m_s2), [0.0]])
 
         # effects in the time domain
-        self.input_chain = _diagonal_chains(input_effects, {"amplifier_lowpass"})
+        self.input_chain = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS))
         self.force_chain = _diagonal_chains(input_effects, {"eddy_current"})
         self.sensor_chain = _diagonal_chains(output_effects, {"sensor_lowpass"})
         self.input_coupling = _coupling(input_effects, "input")
@@ -375,7 +355,7 @@ class RigModel:
         self.force_input = coupling @ de @ di
         self.position_state = np.zeros((N_AXES, n))
         self.position_state[:, blk(2)] = shape.T
-        self.transition, self.input_matrix = _zoh(a, b, self.sample_time_s)
+        self.transition, self.input_matrix = zoh_discretize(a, b, self.sample_time_s)
 
     def _delays(self, delay_s):
         """Sensor delays: each axis samples ``C x`` at ``t_k - tau`` exactly.
@@ -392,7 +372,7 @@ class RigModel:
         self.delayed_state = np.zeros((N_AXES, self.n_states))
         self.delayed_input = np.zeros((N_AXES, self.input_matrix.shape[1]))
         for k in range(N_AXES):
-            phi, gamma = _zoh(self.a, self.b, t - fraction[k])
+            phi, gamma = zoh_discretize(self.a, self.b, t - fraction[k])
             self.delayed_state[k] = self.sensor_output[k] @ phi
             self.delayed_input[k] = self.sensor_output[k] @ gamma
         self.delay_s = delay_s
@@ -488,7 +468,7 @@ class RigModel:
         Returns
         -------
         channels : array (20, B)
-            U2, V2, I_upper, I_lower of every axis (ALL_AXES order) at this cycle [A, m].
+            In `ambid.logs.CHANNELS` order: U2 and V2 of every axis, then I_upper, I_lower of each axis [A, m].
         """
         imp = self.imperfections
         x = state.plant
@@ -522,7 +502,8 @@ class RigModel:
             lower = lower + imp.current_noise_a * rng.standard_normal((N_AXES, batch))
         if quantize:
             upper, lower = _quantize(upper, imp.current_resolution_a), _quantize(lower, imp.current_resolution_a)
-        return np.concatenate([command, measured, upper, lower])
+        # ambid.logs.CHANNELS order: U2 and V2 of every axis, then the (upper, lower) pair of each axis
+        return np.concatenate([command, measured, np.stack([upper, lower], axis=1).reshape(2 * N_AXES, batch)])
 
     # --------------------------------------------------------- linear model
     def sampled_frequency_response(self, frequency_hz):

@@ -4,8 +4,12 @@ import logging
 import sys
 import time
 
+import numpy as np
+
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
+from ambid.io import read_tsv
 from ambid.logs import identification_frame, write_identification_log
+from ambid.machine import ALL_AXES
 from ambid.machine import machine_from_config
 from ambid.mfile import write_thesis_m
 from ambid.plant import Plant
@@ -20,7 +24,12 @@ settings = settings_from_config(snakemake.params.settings)
 nominal = Plant(machine_from_config(snakemake.params.machine_config, name=machine_name, source=snakemake.input.machine))
 rig = rig_from_config(snakemake.params.rig_config, snakemake.params.machine_config, source=snakemake.input.rig)
 started = time.perf_counter()
-rig_model = RigModel(rig)
+setpoint_m = None
+if "center" in snakemake.input.keys():
+    center = read_tsv(snakemake.input.center).set_index("axis")["magnetic_center_m"]
+    setpoint_m = np.array([center.get(axis, 0.0) for axis in ALL_AXES])
+    log.info("set points at the calibrated magnetic center [um]: %s", np.array2string(setpoint_m * 1e6, precision=2))
+rig_model = RigModel(rig, setpoint_m)
 plan = StepPlan.for_machine(nominal, settings)
 totals = {axis: int((plan.axis == axis).sum()) for axis in settings.axes}
 log.info("rig %s: %d steps (%s), seed %d", rig.name, plan.step.size, totals, snakemake.params.seed)

@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from ambid.frf import channel, frf_table, log_arrays, mimo_etfe, siso_etfe
+from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
 from ambid.io import write_parquet
 from ambid.logs import read_identification_log
 from ambid.machine import RADIAL_AXES
@@ -20,11 +20,12 @@ frame, info = read_identification_log(snakemake.input.log)
 arrays = log_arrays(frame)
 siso = siso_etfe(arrays)
 mimo = mimo_etfe(arrays, source=snakemake.input.log) if all(a in arrays for a in RADIAL_AXES) else None
-table = frf_table(siso, mimo)
+table = frf_table(siso, mimo, current=current_etfe(arrays))
 if mimo is not None:
     condition = mimo[3]
     log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
-write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A", "im": "m/A", "std": "m/A", "condition": "-"},
+write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
+                                                        "std": "m/A (A/A: current)", "condition": "-"},
               kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
                                     "source_log": snakemake.input.log, "estimators": sorted(set(table["estimator"]))})
 uff_channels = [(a, a, *channel(table, "siso", a, a)[:2]) for a in ("Z",) if a in arrays]

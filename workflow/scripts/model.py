@@ -1,11 +1,11 @@
-"""Rule `model`: nominal model of one machine -> mode table, plant FRF, stability, figures."""
+"""Rule `model`: one model variant of a machine -> mode table, plant FRF, stability, figures."""
 
 import logging
 import sys
 
 import pandas as pd
 
-from ambid.io import frf_frame, write_parquet, write_tsv
+from ambid.io import frf_frame, read_yaml, write_parquet, write_tsv
 from ambid.loop import stability_summary
 from ambid.machine import AXIAL_AXIS, RADIAL_AXES, machine_from_config
 from ambid.modes import mode_table
@@ -16,9 +16,8 @@ sys.stderr = open(snakemake.log[0], "w")
 logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
 log = logging.getLogger("model")
 
-machine = machine_from_config(
-    snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine
-)
+machine = machine_from_config(read_yaml(snakemake.input.machine), name=snakemake.wildcards.machine,
+                              source=snakemake.input.machine)
 plant = Plant(machine)
 log.info("machine %s: %d elements, %.3f kg, %d retained modes", machine.name, machine.rotor.n_elements,
          machine.rotor.mass_kg, machine.retained_modes)

@@ -5,11 +5,10 @@ import sys
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from ambid.compare import model_channels
 from ambid.frf import channel
-from ambid.io import atomic_path, read_parquet, write_parquet, write_tsv
+from ambid.io import read_parquet, write_parquet, write_tsv, write_yaml
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
@@ -72,8 +71,7 @@ header = (f"# {machine_name} updated by ambid (rule update, thesis ch. 5.2) from
           f"# updated moduli and damping; use this file as a machine model (config.yaml: machines.<name>.model).\n")
 if undetermined:
     header += f"# Not determined by the data (values arbitrary within their bounds): {', '.join(undetermined)}.\n"
-with atomic_path(snakemake.output.machine) as temporary:
-    temporary.write_text(header + yaml.safe_dump(updated_config, sort_keys=False, width=110))
+write_yaml(updated_config, snakemake.output.machine, header)
 
 # figures: Bode overlay (thesis Fig. 6.6 / 6.7), moduli (Fig. 5.5 / 6.8), convergence (Fig. 6.9)
 frf, _ = read_parquet(snakemake.input.frf, kind="frf")

@@ -1,0 +1,96 @@
+# Stages "compare", "diagnose" and "ledger": each model variant against each identification run, the
+# effect the variant lacks, and the misfit across variants (the diagnosis loop).
+
+
+rule compare:
+    input:
+        frf="results/{machine}/frf/{run}/frf.parquet",
+        machine="results/{machine}/model/{variant}/machine.yaml",
+    output:
+        errors="results/{machine}/compare/{run}/{variant}/errors.parquet",
+        summary="results/{machine}/compare/{run}/{variant}/summary.tsv",
+        bode=report(
+            "results/{machine}/compare/{run}/{variant}/figures/bode_compare.png",
+            caption="../workflow/report/compare_bode.rst",
+            category="Compare",
+            subcategory="{machine}",
+        ),
+        error_map=report(
+            "results/{machine}/compare/{run}/{variant}/figures/error_map.png",
+            caption="../workflow/report/compare_error_map.rst",
+            category="Compare",
+            subcategory="{machine}",
+        ),
+    params:
+        settings=config["compare"],
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/compare_{run}_{variant}.log",
+    benchmark:
+        "logs/{machine}/compare_{run}_{variant}.benchmark.tsv"
+    threads: 1
+    script:
+        "../workflow/scripts/compare.py"
+
+
+rule diagnose:
+    input:
+        frf="results/{machine}/frf/{run}/frf.parquet",
+        machine="results/{machine}/model/{variant}/machine.yaml",
+    output:
+        candidates="results/{machine}/diagnose/{run}/{variant}/candidates.tsv",
+        text=report(
+            "results/{machine}/diagnose/{run}/{variant}/diagnosis.md",
+            caption="../workflow/report/diagnosis.rst",
+            category="Diagnose",
+            subcategory="{machine}",
+        ),
+        fingerprint=report(
+            "results/{machine}/diagnose/{run}/{variant}/figures/fingerprint.png",
+            caption="../workflow/report/diagnose_fingerprint.rst",
+            category="Diagnose",
+            subcategory="{machine}",
+        ),
+    params:
+        compare=config["compare"],
+        settings=config["diagnose"],
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/diagnose_{run}_{variant}.log",
+    benchmark:
+        "logs/{machine}/diagnose_{run}_{variant}.benchmark.tsv"
+    threads: 1
+    script:
+        "../workflow/scripts/diagnose.py"
+
+
+rule ledger:
+    input:
+        summaries=lambda wildcards: [
+            f"results/{wildcards.machine}/compare/{run}/{variant}/summary.tsv"
+            for run in runs_of_machine(wildcards.machine)
+            for variant in variants_of(wildcards.machine)
+        ],
+    output:
+        ledger="results/{machine}/ledger/ledger.parquet",
+        table="results/{machine}/ledger/ledger.tsv",
+        figure=report(
+            "results/{machine}/ledger/figures/ledger.png",
+            caption="../workflow/report/ledger.rst",
+            category="Diagnose",
+            subcategory="{machine}",
+        ),
+    params:
+        runs=lambda wildcards: [run for run in runs_of_machine(wildcards.machine) for _ in variants_of(wildcards.machine)],
+        variants=lambda wildcards: [v for _ in runs_of_machine(wildcards.machine) for v in variants_of(wildcards.machine)],
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/ledger.log",
+    benchmark:
+        "logs/{machine}/ledger.benchmark.tsv"
+    threads: 1
+    script:
+        "../workflow/scripts/ledger.py"

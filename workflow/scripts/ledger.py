@@ -1,0 +1,30 @@
+"""Rule `ledger`: the misfit of every model variant against every identification run of a machine, table and plot."""
+
+import logging
+import sys
+
+import pandas as pd
+
+from ambid.io import read_tsv, write_parquet, write_tsv
+from ambid.plots import ledger, save_figure
+
+sys.stderr = open(snakemake.log[0], "w")
+logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
+log = logging.getLogger("ledger")
+
+machine = snakemake.wildcards.machine
+parts = []
+for path, run, variant in zip(snakemake.input.summaries, snakemake.params.runs, snakemake.params.variants):
+    summary = read_tsv(path)
+    summary = summary[summary["band"] == "all"].drop(columns="band")
+    parts.append(summary.assign(machine=machine, run=run, variant=variant))
+table = pd.concat(parts, ignore_index=True)[["machine", "run", "variant", "output", "input", "points", "chi2", "excess",
+                                             "rms_magnitude_db", "rms_phase_deg"]]
+write_parquet(table, snakemake.output.ledger, kind="ledger",
+              units={"chi2": "-", "excess": "-", "rms_magnitude_db": "dB", "rms_phase_deg": "deg", "points": "-"},
+              metadata={"machine": machine})
+write_tsv(table, snakemake.output.table)
+for row in table[table["output"] == "all"].itertuples():
+    log.info("%s %-12s chi2 per point %10.4g  excess %10.4g  rms %.3f dB %.2f deg", row.run, row.variant, row.chi2, row.excess,
+             row.rms_magnitude_db, row.rms_phase_deg)
+save_figure(ledger(table, f"{machine}: misfit of each model variant"), snakemake.output.figure, snakemake.params.dpi)
