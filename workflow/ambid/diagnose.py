@@ -14,7 +14,8 @@ Gaussian likelihood, ``BIC = 2 chi2 / c + k ln(2N)``: ``k`` fitted parameters,
 ``2N`` real data, and ``c >= 1`` the overdispersion (``chi2 / (N - k)`` of the
 best candidate), so that a floor set too low does not make every
 candidate "significant".  The *evidence* of a candidate is its BIC drop
-against the model as it is; it is significant when positive, and two
+against the model as it is; it is significant above `INDISTINGUISHABLE_BIC`,
+and two
 candidates whose evidence differs by less than `INDISTINGUISHABLE_BIC`
 (Kass & Raftery's "very strong" threshold) are reported as indistinguishable
 in the measured band: both are named.
@@ -226,8 +227,7 @@ def _fit(evaluator, candidate, max_evaluations):
             return np.full(2 * points, 1e6)
         return np.concatenate([r.real, r.imag])
 
-    _, base = misfit(evaluator.measured, model_response(evaluator.plant, evaluator.measured))
-    points = base.size
+    points = sum(values.size for _, values, _ in evaluator.measured.values())
     best_x, best_chi2 = start, np.inf
     for value in np.linspace(lower[0], upper[0], candidate.scan_points):
         x = start.copy()
@@ -244,10 +244,11 @@ def _fit(evaluator, candidate, max_evaluations):
     if best_chi2 < chi2:
         x, chi2 = best_x, best_chi2
     values = tuple(p.from_search(v) for p, v in zip(free, x))
-    # standard deviation from the Jacobian (search coordinates, then to values); chi2 is in units of sigma^2 / 2 per component
+    # standard deviation from the Jacobian (search coordinates, then to values): each real component of the
+    # residual has variance 1/2 at the noise floor, inflated by the misfit left (chi2 per point above 1)
     jacobian = solution.jac
     try:
-        covariance = 0.5 * np.linalg.pinv(jacobian.T @ jacobian)
+        covariance = 0.5 * max(1.0, chi2 / points) * np.linalg.pinv(jacobian.T @ jacobian)
         std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     except np.linalg.LinAlgError:
         std_search = np.full(len(free), np.inf)
