@@ -72,15 +72,11 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
     """
     if position_floor < 0 or current_floor < 0:
         raise CompareError(f"relative floors must be >= 0, got {position_floor}, {current_floor}")
-    estimators = set(table["estimator"])
-    radial = "mimo" if "mimo" in estimators else "siso"
-    pairs = {(o, i) for o, i in table.loc[table["estimator"] == radial, ["output", "input"]].itertuples(index=False)}
-    wanted = [(radial, o, i) for o in RADIAL_AXES for i in RADIAL_AXES if (o, i) in pairs and (radial == "mimo" or o == i)]
-    siso_pairs = set(table.loc[table["estimator"] == "siso", ["output", "input"]].itertuples(index=False, name=None))
-    if (AXIAL_AXIS, AXIAL_AXIS) in siso_pairs:
-        wanted.append(("siso", AXIAL_AXIS, AXIAL_AXIS))
-    current_pairs = set(table.loc[table["estimator"] == "current", ["output", "input"]].itertuples(index=False, name=None))
-    wanted += [("current", a, a) for a in ALL_AXES if (a, a) in current_pairs]
+    logged = set(table[["estimator", "output", "input"]].itertuples(index=False, name=None))
+    radial = "mimo" if any(row[0] == "mimo" for row in logged) else "siso"
+    wanted = [(radial, o, i) for o in RADIAL_AXES for i in RADIAL_AXES if radial == "mimo" or o == i]
+    wanted += [("siso", AXIAL_AXIS, AXIAL_AXIS)] + [("current", a, a) for a in ALL_AXES]
+    wanted = [row for row in wanted if row in logged]
     out = {}
     for estimator, output, input_axis in wanted:
         frequency, values, std = channel(table, estimator, output, input_axis)

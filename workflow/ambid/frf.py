@@ -56,6 +56,13 @@ def _v2(axis):
     return CHANNELS.index(f"V2_{axis}")
 
 
+def _ratio(numerator, numerator_std, denominator, denominator_std):
+    """``numerator / denominator`` and its first-order standard deviation from independent noise of both."""
+    ratio = numerator / denominator
+    std = np.abs(ratio) * np.sqrt((numerator_std / np.abs(numerator)) ** 2 + (denominator_std / np.abs(denominator)) ** 2)
+    return ratio, std
+
+
 def siso_etfe(arrays):
     """SISO ETFE of every excited axis to every output axis.
 
@@ -71,9 +78,7 @@ def siso_etfe(arrays):
         u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
         for output in ALL_AXES:
             v, sv = coefficients[:, _v2(output)], noise[:, _v2(output)]
-            g = v / u
-            std = np.abs(g) * np.sqrt((sv / np.abs(v)) ** 2 + (su / np.abs(u)) ** 2)
-            out[(output, excited)] = (frequency, g, std)
+            out[(output, excited)] = (frequency, *_ratio(v, sv, u, su))
     return out
 
 
@@ -92,9 +97,7 @@ def current_etfe(arrays):
         u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
         current = 0.5 * (coefficients[:, upper] - coefficients[:, lower])
         s_current = 0.5 * np.hypot(noise[:, upper], noise[:, lower])
-        ratio = current / u
-        std = np.abs(ratio) * np.sqrt((s_current / np.abs(current)) ** 2 + (su / np.abs(u)) ** 2)
-        out[(excited, excited)] = (frequency, ratio, std)
+        out[(excited, excited)] = (frequency, *_ratio(current, s_current, u, su))
     return out
 
 
