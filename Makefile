@@ -10,7 +10,6 @@ STAMP := $(VENV)/.installed
 ROSS_VENV := .venv-ross
 ROSS_STAMP := $(ROSS_VENV)/.installed
 CORES ?= 2
-REPORT := results/report.html
 
 .PHONY: run test lint crosscheck bench clean
 
@@ -22,8 +21,9 @@ $(STAMP): requirements.txt pyproject.toml
 
 run: $(STAMP)
 	$(BIN)/snakemake --cores $(CORES)
-	$(BIN)/snakemake --report $(REPORT)
-	@echo "Report: $(abspath $(REPORT))  (tables and figures under results/<machine>/)"
+	@echo "Reports (one self-contained HTML page per machine; tables and figures under results/<machine>/):"
+	@for machine in $$($(BIN)/python -c "import yaml; print(*yaml.safe_load(open('config/config.yaml'))['machines'])"); do \
+		echo "  $(CURDIR)/results/$$machine/report.html"; done
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

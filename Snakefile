@@ -1,14 +1,11 @@
 # ambid: AMB identification and rotor model updating.  Thin entry point: configuration,
-# validation, report, the stage rule files and the default target.
+# validation, the stage rule files and the default target.
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 
 configfile: "config/config.yaml"
-
-
-report: "workflow/report/workflow.rst"
 
 
 include: "rules/common.smk"
@@ -19,6 +16,7 @@ include: "rules/frf.smk"
 include: "rules/fit.smk"
 include: "rules/update.smk"
 include: "rules/diagnose.smk"
+include: "rules/report.smk"
 
 
 rule all:

@@ -1,4 +1,6 @@
-# Stage "acquire": measurement runs against the virtual rig (the only rules that read its truth).
+# Stage "acquire": measurement runs against the virtual rig (the only rules that read its truth).  The runs are
+# planned with the rig's as-built machine file, as a test engineer plans with the drawing: editing the model
+# (config/machines/) re-runs no acquisition.
 # A user with a real machine skips these: runs with source "data" expect their logs in data/.
 
 
@@ -6,15 +8,14 @@ rule acquire_identification:
     # centred on the magnetic center its calibration run found (thesis ch. 6), when the run names one
     input:
         unpack(identification_center),
-        machine=machine_model_file,
-        rig=rig_file,
+        unpack(rig_files),
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/identification.parquet",
         mfile="data/{machine}/{run}/identification.m",
     params:
-        machine_config=machine_config,
+        as_built_config=as_built_config,
         rig_config=rig_config,
         settings=config["identification"],
         seed=run_seed,
@@ -32,14 +33,13 @@ rule acquire_identification:
 
 rule acquire_calibration:
     input:
-        machine=machine_model_file,
-        rig=rig_file,
+        unpack(rig_files),
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/calibration.parquet",
     params:
-        machine_config=machine_config,
+        as_built_config=as_built_config,
         rig_config=rig_config,
         settings=config["calibration"],
         seed=run_seed,
@@ -59,12 +59,13 @@ rule calibration_sensitivity:
     # a virtual experiment: the method run with wrong g0, b, theta or a current-sensor offset,
     # scored against the rig's truth (which is why it lives with the rig rules)
     input:
+        unpack(rig_files),
         machine=machine_model_file,
-        rig=rig_file,
     output:
         table="results/{machine}/calibration/{run}/sensitivity.tsv",
     params:
         machine_config=machine_config,
+        as_built_config=as_built_config,
         rig_config=rig_config,
         settings=config["calibration"],
         seed=run_seed,

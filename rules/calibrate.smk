@@ -12,12 +12,7 @@ rule calibrate:
         result="results/{machine}/calibration/{run}/magnetic_center.tsv",
         stiffness="results/{machine}/calibration/{run}/stiffness.tsv",
         operating_point="results/{machine}/calibration/{run}/operating_point.yaml",
-        convergence=report(
-            "results/{machine}/calibration/{run}/figures/convergence.png",
-            caption="../workflow/report/calibration_convergence.rst",
-            category="Calibration",
-            subcategory="{machine}",
-        ),
+        convergence="results/{machine}/calibration/{run}/figures/convergence.png",
     params:
         machine_config=machine_config,
         settings=config["calibration"],

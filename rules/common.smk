@@ -2,6 +2,7 @@
 import hashlib
 from pathlib import Path
 
+import jsonschema
 import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
@@ -14,45 +15,55 @@ from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
 from ambid.variants import NOMINAL, variant_chain
 
-validate(config, schema="../workflow/schemas/config.schema.yaml")
+def check_schema(instance, schema, source):
+    """Validate against a JSON schema (filling its defaults); raise one ConfigError naming the file and key at fault."""
+    try:
+        validate(instance, schema=f"../workflow/schemas/{schema}")
+    except WorkflowError:
+        with open(Path(workflow.basedir, "workflow", "schemas", schema)) as handle:
+            validator = jsonschema.Draft202012Validator(yaml.safe_load(handle))
+        error = jsonschema.exceptions.best_match(validator.iter_errors(instance))
+        key = "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in error.absolute_path).lstrip(".")
+        raise ConfigError(key or "(top level)", error.message, source=source) from None
 
 
-def load_machine_config(name):
-    """Read and validate one machine model; raise naming the file and key at fault."""
-    path = config["machines"][name]["model"]
+check_schema(config, "config.schema.yaml", "config")
+
+
+def read_machine_file(path, key, name):
+    """Read and validate a machine file; raise naming the file and the config key that points to it."""
     try:
         with open(path) as handle:
             machine_config = yaml.safe_load(handle)
     except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"machines.{name}.model", f"cannot read {path}: {error}") from None
+        raise ConfigError(key, f"cannot read {path}: {error}") from None
     if not isinstance(machine_config, dict):
-        raise ConfigError(f"machines.{name}.model", f"{path} does not hold a mapping")
-    try:
-        validate(machine_config, schema="../workflow/schemas/machine.schema.yaml")
-    except WorkflowError as error:
-        raise ConfigError(f"machines.{name}.model", f"{path} does not match the machine schema: {error}") from None
+        raise ConfigError(key, f"{path} does not hold a mapping")
+    check_schema(machine_config, "machine.schema.yaml", path)
     machine_from_config(machine_config, name=name, source=path)  # cross-reference checks
     return machine_config
 
 
-MACHINE_CONFIGS = {name: load_machine_config(name) for name in config["machines"]}
+MACHINE_CONFIGS = {name: read_machine_file(entry["model"], f"machines.{name}.model", name)
+                   for name, entry in config["machines"].items()}
 
 
 def load_rig_config(name):
-    """Read and validate a machine's virtual rig truth (passed only to acquisition rules)."""
+    """Read and validate a machine's virtual rig truth and its as-built machine (acquisition rules only)."""
     path = config["machines"][name].get("rig")
     if path is None:
         raise ConfigError(f"machines.{name}.rig", "runs with source 'rig' need a rig file")
     try:
         with open(path) as handle:
             rig_config = yaml.safe_load(handle)
-        validate(rig_config, schema="../workflow/schemas/rig.schema.yaml")
-    except (OSError, yaml.YAMLError, WorkflowError) as error:
+    except (OSError, yaml.YAMLError) as error:
         raise ConfigError(f"machines.{name}.rig", f"{path}: {error}") from None
+    check_schema(rig_config, "rig.schema.yaml", path)
     if rig_config["machine"] != name:
         raise ConfigError(f"machines.{name}.rig", f"{path} is the rig of machine {rig_config['machine']!r}")
-    rig_from_config(rig_config, MACHINE_CONFIGS[name], source=path)  # cross-reference checks
-    return rig_config
+    as_built = read_machine_file(rig_config["as_built"], f"{path}: as_built", name)
+    rig_from_config(rig_config, as_built, source=path)  # cross-reference checks
+    return rig_config, as_built
 
 
 RUNS = {
@@ -62,7 +73,7 @@ RUNS = {
 }
 RIG_CONFIGS = {
     machine: load_rig_config(machine) for machine in {m for (m, _), spec in RUNS.items() if spec["source"] == "rig"}
-}
+}  # machine -> (rig config, as-built machine config)
 
 
 def variants_of(machine):
@@ -128,12 +139,17 @@ def machine_config(wildcards):
     return MACHINE_CONFIGS[wildcards.machine]
 
 
-def rig_file(wildcards):
-    return config["machines"][wildcards.machine]["rig"]
+def rig_files(wildcards):
+    """The rig's truth and its as-built machine file (inputs of the acquisition rules)."""
+    return {"rig": config["machines"][wildcards.machine]["rig"], "as_built": RIG_CONFIGS[wildcards.machine][0]["as_built"]}
 
 
 def rig_config(wildcards):
-    return RIG_CONFIGS[wildcards.machine]
+    return RIG_CONFIGS[wildcards.machine][0]
+
+
+def as_built_config(wildcards):
+    return RIG_CONFIGS[wildcards.machine][1]
 
 
 def run_seed(wildcards):
@@ -193,6 +209,8 @@ MODEL_OUTPUTS = [
     "figures/axial_bode.png",
     "figures/mode_shapes.png",
 ]
+FRF_OUTPUTS = ["frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
+FIT_OUTPUTS = ["features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
 DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]
 LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
@@ -211,50 +229,31 @@ UPDATE_OUTPUTS = [
 ]
 
 
+def machine_outputs(machine):
+    """Every result of one machine but its report: acquired logs, calibration, FRF, fit, update, models, diagnosis."""
+    identification = runs_of_machine(machine)
+    calibration = runs_of_machine(machine, "calibration")
+    rig_runs = {run for m, run in runs_of("identification", "rig") + runs_of("calibration", "rig") if m == machine}
+    outputs = [f"data/{machine}/{run}/identification.{suffix}" for run in identification if run in rig_runs
+               for suffix in ("parquet", "m")]
+    outputs += [f"results/{machine}/calibration/{run}/{name}" for run in calibration for name in CALIBRATION_OUTPUTS]
+    outputs += [f"results/{machine}/calibration/{run}/sensitivity.tsv" for run in calibration if run in rig_runs]
+    outputs += [f"results/{machine}/{stage}/{run}/{name}" for run in identification
+                for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS)) for name in names]
+    if config["machines"][machine].get("update"):
+        outputs += [f"results/{machine}/update/{run}/{name}" for run in identification for name in UPDATE_OUTPUTS]
+    outputs += [f"results/{machine}/model/{variant}/{name}" for variant in variants_of(machine) for name in MODEL_OUTPUTS]
+    outputs += [f"results/{machine}/{stage}/{run}/{variant}/{name}" for run in identification
+                for variant in variants_of(machine)
+                for stage, names in (("compare", COMPARE_OUTPUTS), ("diagnose", DIAGNOSE_OUTPUTS)) for name in names]
+    if identification:
+        outputs += [f"results/{machine}/ledger/{name}" for name in LEDGER_OUTPUTS]
+    return outputs
+
+
 def all_outputs():
-    acquired = [
-        f"data/{machine}/{run}/identification.{suffix}"
-        for machine, run in runs_of("identification", "rig")
-        for suffix in ("parquet", "m")
-    ]
-    calibration = [
-        f"results/{machine}/calibration/{run}/{name}"
-        for machine, run in runs_of("calibration")
-        for name in CALIBRATION_OUTPUTS
-    ]
-    sensitivity = [f"results/{machine}/calibration/{run}/sensitivity.tsv" for machine, run in runs_of("calibration", "rig")]
-    frfs = [
-        f"results/{machine}/frf/{run}/{name}"
-        for machine, run in runs_of("identification")
-        for name in ("frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png")
-    ]
-    fits = [
-        f"results/{machine}/fit/{run}/{name}"
-        for machine, run in runs_of("identification")
-        for name in ("features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png")
-    ]
-    updates = [
-        f"results/{machine}/update/{run}/{name}"
-        for machine, run in runs_of("identification")
-        if config["machines"][machine].get("update")
-        for name in UPDATE_OUTPUTS
-    ]
-    models = [
-        f"results/{machine}/model/{variant}/{name}"
-        for machine in MACHINE_CONFIGS
-        for variant in variants_of(machine)
-        for name in MODEL_OUTPUTS
-    ]
-    diagnosis = [
-        f"results/{machine}/{stage}/{run}/{variant}/{name}"
-        for machine, run in runs_of("identification")
-        for variant in variants_of(machine)
-        for stage, names in (("compare", COMPARE_OUTPUTS), ("diagnose", DIAGNOSE_OUTPUTS))
-        for name in names
-    ]
-    ledgers = [f"results/{machine}/ledger/{name}" for machine in MACHINE_CONFIGS if runs_of_machine(machine)
-               for name in LEDGER_OUTPUTS]
-    return acquired + calibration + sensitivity + frfs + fits + updates + models + diagnosis + ledgers
+    """The default target: each machine's report (which needs all of its results)."""
+    return [f"results/{machine}/report.html" for machine in MACHINE_CONFIGS]
 
 
 def runs_of_machine(machine, kind="identification"):

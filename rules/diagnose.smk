@@ -9,18 +9,8 @@ rule compare:
     output:
         errors="results/{machine}/compare/{run}/{variant}/errors.parquet",
         summary="results/{machine}/compare/{run}/{variant}/summary.tsv",
-        bode=report(
-            "results/{machine}/compare/{run}/{variant}/figures/bode_compare.png",
-            caption="../workflow/report/compare_bode.rst",
-            category="Compare",
-            subcategory="{machine}",
-        ),
-        error_map=report(
-            "results/{machine}/compare/{run}/{variant}/figures/error_map.png",
-            caption="../workflow/report/compare_error_map.rst",
-            category="Compare",
-            subcategory="{machine}",
-        ),
+        bode="results/{machine}/compare/{run}/{variant}/figures/bode_compare.png",
+        error_map="results/{machine}/compare/{run}/{variant}/figures/error_map.png",
     params:
         settings=config["compare"],
         dpi=config["figures"]["dpi"],
@@ -40,18 +30,8 @@ rule diagnose:
         machine="results/{machine}/model/{variant}/machine.yaml",
     output:
         candidates="results/{machine}/diagnose/{run}/{variant}/candidates.tsv",
-        text=report(
-            "results/{machine}/diagnose/{run}/{variant}/diagnosis.md",
-            caption="../workflow/report/diagnosis.rst",
-            category="Diagnose",
-            subcategory="{machine}",
-        ),
-        fingerprint=report(
-            "results/{machine}/diagnose/{run}/{variant}/figures/fingerprint.png",
-            caption="../workflow/report/diagnose_fingerprint.rst",
-            category="Diagnose",
-            subcategory="{machine}",
-        ),
+        text="results/{machine}/diagnose/{run}/{variant}/diagnosis.md",
+        fingerprint="results/{machine}/diagnose/{run}/{variant}/figures/fingerprint.png",
     params:
         compare=config["compare"],
         settings=config["diagnose"],
@@ -76,12 +56,7 @@ rule ledger:
     output:
         ledger="results/{machine}/ledger/ledger.parquet",
         table="results/{machine}/ledger/ledger.tsv",
-        figure=report(
-            "results/{machine}/ledger/figures/ledger.png",
-            caption="../workflow/report/ledger.rst",
-            category="Diagnose",
-            subcategory="{machine}",
-        ),
+        figure="results/{machine}/ledger/figures/ledger.png",
     params:
         runs=lambda wildcards: [run for run in runs_of_machine(wildcards.machine) for _ in variants_of(wildcards.machine)],
         variants=lambda wildcards: [v for _ in runs_of_machine(wildcards.machine) for v in variants_of(wildcards.machine)],

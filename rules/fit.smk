@@ -9,18 +9,8 @@ rule fit:
         features="results/{machine}/fit/{run}/features.parquet",
         table="results/{machine}/fit/{run}/features.tsv",
         models="results/{machine}/fit/{run}/models.parquet",
-        bode=report(
-            "results/{machine}/fit/{run}/figures/bode_fit.png",
-            caption="../workflow/report/fit_bode.rst",
-            category="Fit",
-            subcategory="{machine}",
-        ),
-        stabilization=report(
-            "results/{machine}/fit/{run}/figures/stabilization.png",
-            caption="../workflow/report/fit_stabilization.rst",
-            category="Fit",
-            subcategory="{machine}",
-        ),
+        bode="results/{machine}/fit/{run}/figures/bode_fit.png",
+        stabilization="results/{machine}/fit/{run}/figures/stabilization.png",
     params:
         machine_config=machine_config,
         settings=config["fit"],

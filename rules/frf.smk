@@ -7,24 +7,9 @@ rule frf:
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         uff="results/{machine}/frf/{run}/frf.uff",
-        radial_siso=report(
-            "results/{machine}/frf/{run}/figures/radial_siso.png",
-            caption="../workflow/report/frf.rst",
-            category="FRF",
-            subcategory="{machine}",
-        ),
-        radial_mimo=report(
-            "results/{machine}/frf/{run}/figures/radial_mimo.png",
-            caption="../workflow/report/frf.rst",
-            category="FRF",
-            subcategory="{machine}",
-        ),
-        axial=report(
-            "results/{machine}/frf/{run}/figures/axial.png",
-            caption="../workflow/report/frf.rst",
-            category="FRF",
-            subcategory="{machine}",
-        ),
+        radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
+        radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
+        axial="results/{machine}/frf/{run}/figures/axial.png",
     params:
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,

@@ -27,24 +27,9 @@ rule model:
         modes="results/{machine}/model/{variant}/modes.tsv",
         frf="results/{machine}/model/{variant}/plant_frf.parquet",
         stability="results/{machine}/model/{variant}/stability.tsv",
-        bode=report(
-            "results/{machine}/model/{variant}/figures/plant_bode.png",
-            caption="../workflow/report/plant_bode.rst",
-            category="Model",
-            subcategory="{machine}",
-        ),
-        axial_bode=report(
-            "results/{machine}/model/{variant}/figures/axial_bode.png",
-            caption="../workflow/report/plant_bode.rst",
-            category="Model",
-            subcategory="{machine}",
-        ),
-        mode_shapes=report(
-            "results/{machine}/model/{variant}/figures/mode_shapes.png",
-            caption="../workflow/report/mode_shapes.rst",
-            category="Model",
-            subcategory="{machine}",
-        ),
+        bode="results/{machine}/model/{variant}/figures/plant_bode.png",
+        axial_bode="results/{machine}/model/{variant}/figures/axial_bode.png",
+        mode_shapes="results/{machine}/model/{variant}/figures/mode_shapes.png",
     params:
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,

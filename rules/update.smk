@@ -13,24 +13,9 @@ rule update:
         correlation="results/{machine}/update/{run}/correlation.tsv",
         history="results/{machine}/update/{run}/history.parquet",
         machine="results/{machine}/update/{run}/machine.yaml",
-        bode=report(
-            "results/{machine}/update/{run}/figures/bode_update.png",
-            caption="../workflow/report/update_bode.rst",
-            category="Update",
-            subcategory="{machine}",
-        ),
-        modulus=report(
-            "results/{machine}/update/{run}/figures/youngs_modulus.png",
-            caption="../workflow/report/update_modulus.rst",
-            category="Update",
-            subcategory="{machine}",
-        ),
-        convergence=report(
-            "results/{machine}/update/{run}/figures/convergence.png",
-            caption="../workflow/report/update_convergence.rst",
-            category="Update",
-            subcategory="{machine}",
-        ),
+        bode="results/{machine}/update/{run}/figures/bode_update.png",
+        modulus="results/{machine}/update/{run}/figures/youngs_modulus.png",
+        convergence="results/{machine}/update/{run}/figures/convergence.png",
     params:
         machine_config=machine_config,
         machine_update=lambda wildcards: config["machines"][wildcards.machine].get("update", {}),

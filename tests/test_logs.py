@@ -10,6 +10,7 @@ from ambid.logs import (
     CHANNELS,
     channel_unit,
     identification_frame,
+    noise_from_scatter,
     read_identification_log,
     validate_identification_log,
     write_identification_log,
@@ -226,3 +227,30 @@ def test_valid_frame_need_not_be_sorted_nor_cover_all_axes(frame):
     validate_identification_log(identification_frame(make_steps(axes=ALL_AXES, n_steps=2)), "all axes")
     gaps = frame[frame["step"] != 1]  # a rejected step leaves a gap in the grid
     validate_identification_log(gaps, "gaps")
+
+
+def test_noise_from_scatter_recovers_each_sensors_noise():
+    """A smooth response plus complex white noise of known std per channel: the estimate within 10 %;
+    a channel with a strong response on one excited axis takes its noise from the axis that leaves it quiet."""
+    rng = np.random.default_rng(5)
+    frequency = np.linspace(5.0, 1000.0, 200)
+    sigma = np.where([channel_unit(c) == "m" for c in CHANNELS], 1e-8, 5e-4)
+    steps = []
+    for axis in ("DX", "DY"):
+        for k, f in enumerate(frequency):
+            response = np.where([c == f"V2_{axis}" for c in CHANNELS], 1e-5 / (1 - (f / 455.0) ** 2 + 0.02j * f / 455.0), 0)
+            response = response + np.where([c == f"U2_{axis}" for c in CHANNELS], 0.5, 0)
+            noise = sigma * (rng.standard_normal(20) + 1j * rng.standard_normal(20)) / np.sqrt(2)
+            steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 0.5, "attempts": 1,
+                          "coefficients": response + noise, "noise_std": np.zeros(20)})
+    estimated = noise_from_scatter(identification_frame(steps)).groupby("channel")["noise_std"].first()
+    assert_allclose(estimated[list(CHANNELS)].to_numpy(), sigma, rtol=0.1)
+    # excited on its own axis only, the resonance inflates the resonant channel's scatter
+    alone = noise_from_scatter(identification_frame([s for s in steps if s["excited_axis"] == "DX"]))
+    assert alone.loc[alone["channel"] == "V2_DX", "noise_std"].iloc[0] > 1.2 * estimated["V2_DX"]
+
+
+def test_noise_from_scatter_needs_three_steps():
+    frame = identification_frame(make_steps(n_steps=2))
+    with pytest.raises(LogError, match="fewer than 3 steps"):
+        noise_from_scatter(frame, "run.m")

@@ -27,10 +27,31 @@ def snakemake(workdir, *args, snakefile=ROOT / "Snakefile"):
     )
 
 
+EXAMPLE_LOG = "data/demo20/thesis01/identification.m"  # shipped with the repository
+
+
 @pytest.fixture
 def workdir(tmp_path):
+    """A user's working directory: the config and the shipped example log."""
     shutil.copytree(ROOT / "config", tmp_path / "config")
+    (tmp_path / EXAMPLE_LOG).parent.mkdir(parents=True)
+    shutil.copy(ROOT / EXAMPLE_LOG, tmp_path / EXAMPLE_LOG)
     return tmp_path
+
+
+def edit_config(workdir, change):
+    path = workdir / "config" / "config.yaml"
+    config = yaml.safe_load(path.read_text())
+    change(config)
+    path.write_text(yaml.safe_dump(config))
+
+
+def demo20_on_its_rig(config):
+    """demo20 measured on its virtual rig: a calibration run and an identification at the center it finds."""
+    config["machines"]["demo20"].update(
+        runs={"cal01": {"kind": "calibration", "source": "rig", "seed": 2},
+              "ident01": {"kind": "identification", "source": "rig", "seed": 1, "calibration": "cal01"}},
+        operating_point="cal01", variants={"updated": {"update": "ident01"}})
 
 
 def edit_machine(workdir, name, change):
@@ -48,7 +69,7 @@ def edit_machine(workdir, name, change):
         (lambda c: c.update(effects=[{"name": "warp_drive"}]), "warp_drive"),
         (lambda c: c["rotor"].update(colour="red"), "colour"),
         (lambda c: c["materials"].update(copper=c["materials"].pop("steel")), "unknown material 'steel'"),
-        (lambda c: c["materials"].clear(), "demo20.yaml does not match the machine schema"),
+        (lambda c: c["materials"].clear(), "config/machines/demo20.yaml: materials: {} should be non-empty"),
     ],
 )
 def test_config_errors_fail_before_any_job(workdir, change, key):
@@ -68,6 +89,7 @@ def test_config_errors_fail_before_any_job(workdir, change, key):
     ],
 )
 def test_rig_config_errors_fail_before_any_job(workdir, change, key):
+    edit_config(workdir, demo20_on_its_rig)
     path = workdir / "config" / "rigs" / "demo20.yaml"
     config = yaml.safe_load(path.read_text())
     change(config)
@@ -77,9 +99,11 @@ def test_rig_config_errors_fail_before_any_job(workdir, change, key):
 
 
 def test_identification_run_is_reproducible(workdir, tmp_path):
-    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
-    config["identification"]["axes"] = ["NX", "Z"]  # a shorter run, same code path
-    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    def change(config):
+        demo20_on_its_rig(config)
+        config["identification"]["axes"] = ["NX", "Z"]  # a shorter run, same code path
+
+    edit_config(workdir, change)
     second = tmp_path / "second"
     shutil.copytree(workdir, second)
     targets = ["data/demo20/ident01/identification.parquet", "data/demo20/ident01/identification.m"]
@@ -96,9 +120,11 @@ def test_identification_run_is_reproducible(workdir, tmp_path):
 
 
 def test_calibration_stage_from_log_to_operating_point(workdir):
-    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
-    config["calibration"].update(repetitions=2, average_s=0.3)  # shorter, same code path
-    (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
+    def change(config):
+        demo20_on_its_rig(config)
+        config["calibration"].update(repetitions=2, average_s=0.3)  # shorter, same code path
+
+    edit_config(workdir, change)
     base = "results/demo20/calibration/cal01"
     result = snakemake(workdir, f"{base}/magnetic_center.tsv", f"{base}/operating_point.yaml")
     assert result.returncode == 0, result.stderr[-3000:]
@@ -139,18 +165,17 @@ def test_real_logs_in_thesis_m_format(workdir):
          "noise_std": np.full(len(CHANNELS), 1e-3)}
         for axis in ("DX", "DY", "NX", "NY", "Z") for k in range(6)
     ]
-    run = workdir / "data/demo20/thesis01"
+    run = workdir / "data/demo20/mine01"
     run.mkdir(parents=True)
     write_thesis_m(identification_frame(steps), run / "identification.m")
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
-    config["machines"]["demo20"]["runs"] = {"thesis01": {"kind": "identification", "source": "data", "format": "m"}}
-    for key in ("variants", "operating_point"):  # they name the rig runs dropped here
-        config["machines"]["demo20"].pop(key)
+    config["machines"]["demo20"]["runs"] = {"mine01": {"kind": "identification", "source": "data", "format": "m"}}
+    config["machines"]["demo20"].pop("variants")  # it names the run dropped here
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
-    result = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet")
+    result = snakemake(workdir, "results/demo20/frf/mine01/frf.parquet")
     assert result.returncode == 0, result.stderr[-3000:]
     assert "rule import_thesis_m" in result.stdout + result.stderr and "acquire_identification" not in result.stdout + result.stderr
-    frame, _ = read_parquet(workdir / "results/demo20/frf/thesis01/frf.parquet", kind="frf")
+    frame, _ = read_parquet(workdir / "results/demo20/frf/mine01/frf.parquet", kind="frf")
     assert set(frame["estimator"]) == {"siso", "mimo", "current"}
 
 
@@ -244,7 +269,6 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["machines"] = {"demo20": {**config["machines"]["demo20"], "runs": {"user01": {"kind": "identification",
                                                                                        "source": "data"}}}}
-    config["machines"]["demo20"].pop("operating_point")
     config["machines"]["demo20"]["variants"] = {"updated": {"update": "user01"}}
     config["update"]["starts"] = 3
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))

@@ -274,7 +274,8 @@ def diagnose(machine, measured, candidates=None, max_evaluations=60, sequence_le
         of the misfit and effects of similar shape can absorb part of another's
         (a low-pass bending a housing resonance): up to this many significant
         effects are chosen one after the other (forward selection), each
-        fitted on top of the ones before (`Diagnosis.sequence`).
+        fitted on top of the ones before and each a different candidate
+        (`Diagnosis.sequence`).
 
     Returns
     -------
@@ -285,7 +286,8 @@ def diagnose(machine, measured, candidates=None, max_evaluations=60, sequence_le
     evaluator = _Evaluator(machine, measured)
     chi2, residual = evaluator.residual(None)
     points = residual.size
-    fitted = [_fit(evaluator, candidate, max_evaluations) for candidate in (candidates or candidate_space(machine))]
+    candidates = candidates or candidate_space(machine)
+    fitted = [_fit(evaluator, candidate, max_evaluations) for candidate in candidates]
     best_chi2 = min([f.chi2 for f in fitted] + [chi2])
     overdispersion = max(1.0, best_chi2 / points)
     penalty = np.log(2 * points)
@@ -301,7 +303,8 @@ def diagnose(machine, measured, candidates=None, max_evaluations=60, sequence_le
     if diagnosis.best is not None:
         diagnosis.sequence = [diagnosis.best]
         if sequence_length > 1:
-            following = diagnose(machine.with_effects(machine.effects + (diagnosis.best.effect,)), measured, candidates,
+            others = [c for c in candidates if c.label != diagnosis.best.candidate.label]  # a different effect next
+            following = diagnose(machine.with_effects(machine.effects + (diagnosis.best.effect,)), measured, others,
                                  max_evaluations, sequence_length - 1)
             diagnosis.sequence += following.sequence
     return diagnosis

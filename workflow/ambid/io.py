@@ -10,8 +10,11 @@ never leaves a half-written result.
 
 import contextlib
 import json
+import logging
 import os
+import sys
 import tempfile
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +27,7 @@ from .errors import AmbidError, ConfigError
 
 __all__ = [
     "SCHEMA_VERSION",
+    "rule_log",
     "atomic_path",
     "write_parquet",
     "read_parquet",
@@ -177,3 +181,35 @@ def frf_from_frame(frame, output, input):
     """Frequencies and complex values of one channel of an `frf_frame` table."""
     channel = frame[(frame["output"] == output) & (frame["input"] == input)].sort_values("frequency_hz")
     return channel["frequency_hz"].to_numpy(), channel["re"].to_numpy() + 1j * channel["im"].to_numpy()
+
+
+def rule_log(log_path, name):
+    """Set up a Snakemake rule script: its log and stderr go to ``log_path``.
+
+    An `AmbidError` the script raises then ends it with its message, which
+    names the file, line or key at fault, as one line on the console (and in
+    the log) instead of a traceback; any other exception is a bug and keeps
+    its traceback.  Snakemake removes the outputs of the failed job, and
+    ambid writes every output atomically, so no partial result remains.
+
+    Returns
+    -------
+    logging.Logger
+        Logger ``name`` writing to the log file.
+    """
+    handle = open(log_path, "w")
+    sys.stderr = handle
+    logging.basicConfig(stream=handle, level=logging.INFO, format="%(asctime)s %(message)s")
+
+    def report(kind, error, trace):
+        if issubclass(kind, AmbidError):
+            message = f"ambid error ({name}): {error}"
+            print(message, file=handle)
+            print(message, file=sys.__stderr__)
+        else:
+            traceback.print_exception(kind, error, trace, file=handle)
+            traceback.print_exception(kind, error, trace, file=sys.__stderr__)
+        handle.flush()
+
+    sys.excepthook = report
+    return logging.getLogger(name)

@@ -29,6 +29,7 @@ __all__ = [
     "write_identification_log",
     "read_identification_log",
     "validate_identification_log",
+    "noise_from_scatter",
 ]
 
 KIND = "identification_log"
@@ -260,7 +261,8 @@ def validate_identification_log(frame, source):
         their excited axis and step, when a column is missing, extra or of the
         wrong dtype; an axis or channel is unknown; a value is not finite;
         ``step < 0``, ``frequency_hz <= 0``, ``amplitude_a <= 0``,
-        ``noise_std < 0`` or ``attempts < 1``; an (axis, step) has a duplicate
+        ``noise_std < 0`` or ``attempts < 1``; the excited axis' ``U2`` is 0
+        (zero excitation); an (axis, step) has a duplicate
         or missing channel, or rows disagreeing on frequency, amplitude or
         attempts; or an axis' frequency grid does not strictly increase with step.
     """
@@ -285,6 +287,10 @@ def validate_identification_log(frame, source):
     _check_row(frame, frame["amplitude_a"].to_numpy() <= 0, source, "amplitude_a <= 0 (no excitation)")
     _check_row(frame, frame["noise_std"].to_numpy() < 0, source, "noise_std < 0", per_channel=True)
     _check_row(frame, frame["attempts"].to_numpy() < 1, source, "attempts < 1")
+    excitation = (frame["channel"] == "U2_" + frame["excited_axis"]).to_numpy()
+    silent = excitation & (np.hypot(frame["re"].to_numpy(dtype=float), frame["im"].to_numpy(dtype=float)) == 0)
+    _check_row(frame, silent, source, "the excited axis' control current U2 is 0 (zero excitation: no FRF point)",
+               per_channel=True)
 
     duplicated = frame.duplicated(["excited_axis", "step", "channel"], keep=False).to_numpy()
     _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step)", per_channel=True)
@@ -319,3 +325,53 @@ def validate_identification_log(frame, source):
                 f"{_where(frame, mask)}: frequency grid of {axis} not strictly increasing with step "
                 f"(step {pair[1]} at {frequency_hz[k + 1]:.6g} Hz follows step {pair[0]} at {frequency_hz[k]:.6g} Hz)",
             )
+
+
+def noise_from_scatter(frame, source="<frame>"):
+    """Fill a log's unknown noise with each channel's scatter between neighbouring steps.
+
+    A log without a noise estimate (the thesis' ``.m`` format; ``noise_std`` all 0)
+    would make every FRF point exact.  The noise of a channel is a property of its
+    sensor, the same whatever axis is excited, so it is estimated per channel as
+    the smallest, over the excited axes, of the robust second-difference scatter
+
+    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``
+
+    of the coefficients ``c`` along the steps (exact for complex white noise,
+    where ``|d|^2`` is exponential with mean ``6 sigma^2``; a smooth response
+    adds little to a second difference, and the axes that leave a channel at
+    the noise floor give its noise directly).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Identification log; its ``noise_std`` is replaced.
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``noise_std`` per channel, constant over the steps.
+
+    Raises
+    ------
+    LogError
+        If no excited axis has three steps, or a channel's scatter is 0
+        (a constant or copied channel).
+    """
+    frame = frame.sort_values(["excited_axis", "channel", "step"])
+    estimates = {}
+    for (axis, name), group in frame.groupby(["excited_axis", "channel"], sort=False):
+        c = group["re"].to_numpy() + 1j * group["im"].to_numpy()
+        if c.size >= 3:
+            sigma = np.median(np.abs(c[2:] - 2 * c[1:-1] + c[:-2])) / np.sqrt(6 * np.log(2))
+            estimates[name] = min(estimates.get(name, np.inf), sigma)
+    missing = sorted(set(frame["channel"]) - set(estimates))
+    if missing:
+        raise LogError(source, f"noise cannot be estimated (fewer than 3 steps on every excited axis): {', '.join(missing)}")
+    silent = sorted(name for name, sigma in estimates.items() if not sigma > 0)
+    if silent:
+        raise LogError(source, f"channels {', '.join(silent)} do not scatter at all (constant or copied values)")
+    frame = frame.assign(noise_std=frame["channel"].map(estimates).astype(float))
+    return frame.sort_index()

@@ -6,7 +6,7 @@ column layout `THESIS_COLUMNS` (1-based as in MATLAB).  Columns 3-10 are the
 thesis' own layout, so its appendix formula
 ``data_exc_dx(:,7)./data_exc_dx(:,3)/1e6`` gives the DX plant in m/A; positions
 are therefore written in micrometres.  Numbers are written with 17 significant
-digits, so every double round-trips exactly through the text.  The file is
+digits by default, so every double round-trips exactly through the text.  The file is
 data for a strict parser, never to be evaluated: `parse_thesis_m` accepts only
 ``data_exc_<axis> = [numbers]`` assignments and comments, with a hand-written
 linear-time scanner, and `read_thesis_m` turns such a file back into an
@@ -55,15 +55,15 @@ def variable_name(axis):
     return f"data_exc_{axis.lower()}"
 
 
-def _real(value):
-    return f"{value:.17g}"
+def _real(value, digits=17):
+    return f"{value:.{digits}g}"
 
 
-def _complex(value):
-    return f"{value.real:.17g}{value.imag:+.17g}i"
+def _complex(value, digits=17):
+    return f"{value.real:.{digits}g}{value.imag:+.{digits}g}i"
 
 
-def _axis_rows(frame, axis):
+def _axis_rows(frame, axis, digits):
     """Lines of the matrix of one excited axis, by increasing step."""
     part = frame[frame["excited_axis"] == axis]
     table = part.pivot(index="step", columns="channel", values=["re", "im"]).sort_index()
@@ -73,12 +73,12 @@ def _axis_rows(frame, axis):
     coefficients = (table["re"][channels].to_numpy() + 1j * table["im"][channels].to_numpy()) * scale
     lines = []
     for (frequency_hz, amplitude_a), row in zip(per_step.to_numpy(), coefficients):
-        values = [_real(frequency_hz), _real(amplitude_a)] + [_complex(value) for value in row]
+        values = [_real(frequency_hz), _real(amplitude_a, digits)] + [_complex(value, digits) for value in row]
         lines.append("  ".join(values) + ";")
     return lines
 
 
-def write_thesis_m(frame, path, header_lines=()):
+def write_thesis_m(frame, path, header_lines=(), digits=17):
     """Write an identification log as a MATLAB script in the thesis' format.
 
     Parameters
@@ -90,6 +90,10 @@ def write_thesis_m(frame, path, header_lines=()):
         Target ``.m`` file, written atomically.
     header_lines : sequence of str, optional
         Comment lines (machine, run, ...) placed at the top, each prefixed ``% ``.
+    digits : int, optional
+        Significant digits of amplitudes and coefficients (frequencies keep 17).
+        17, the default, round-trips every double exactly; fewer make a smaller
+        file for data whose noise is far above that precision.
 
     Notes
     -----
@@ -109,7 +113,7 @@ def write_thesis_m(frame, path, header_lines=()):
     lines.append(f"% columns: {layout}")
     present = set(frame["excited_axis"])
     for axis in (axis for axis in ALL_AXES if axis in present):
-        lines += ["", f"{variable_name(axis)} = ["] + _axis_rows(frame, axis) + ["];"]
+        lines += ["", f"{variable_name(axis)} = ["] + _axis_rows(frame, axis, digits) + ["];"]
     with atomic_path(path) as temporary:
         temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
 

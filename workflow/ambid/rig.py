@@ -32,7 +32,7 @@ import scipy.optimize
 from .bearing import ActuatorAxes, force, force_derivatives
 from .effects import COIL_CURRENT_EFFECTS, effect_from_config, series_state_space, split_effects
 from .errors import ConfigError, ModelError
-from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
+from .machine import ALL_AXES, machine_from_config
 from .plant import Plant, zoh_discretize
 
 __all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]

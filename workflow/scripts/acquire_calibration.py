@@ -1,22 +1,19 @@
 """Rule `acquire_calibration`: run the bias-perturbation calibration on the virtual rig, write its log."""
 
-import logging
-import sys
-
 import numpy as np
 
+from ambid.io import rule_log
 from ambid.calibration import calibration_settings_from_config, run_calibration, write_calibration_log
 from ambid.machine import machine_from_config
 from ambid.rig import RigModel, rig_from_config
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("acquire_calibration")
+log = rule_log(snakemake.log[0], "acquire_calibration")
 
 settings = calibration_settings_from_config(snakemake.params.settings)
-machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine)
-method_axes = [b.electromagnet for b in machine.radial_bearings for _ in ("x", "y")]  # what the engineer believes
-rig_model = RigModel(rig_from_config(snakemake.params.rig_config, snakemake.params.machine_config, source=snakemake.input.rig))
+as_built = snakemake.params.as_built_config
+machine = machine_from_config(as_built, name=snakemake.wildcards.machine, source=snakemake.input.as_built)
+method_axes = [b.electromagnet for b in machine.radial_bearings for _ in ("x", "y")]  # what the drawing says
+rig_model = RigModel(rig_from_config(snakemake.params.rig_config, as_built, source=snakemake.input.rig))
 
 
 def progress(iteration, offsets, converged):

@@ -1,13 +1,11 @@
 """Rule `acquire_identification`: drive the virtual rig through the stepped-sine run, write the logs."""
 
-import logging
-import sys
 import time
 
 import numpy as np
 
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
-from ambid.io import read_tsv
+from ambid.io import read_tsv, rule_log
 from ambid.logs import identification_frame, write_identification_log
 from ambid.machine import ALL_AXES
 from ambid.machine import machine_from_config
@@ -15,14 +13,13 @@ from ambid.mfile import write_thesis_m
 from ambid.plant import Plant
 from ambid.rig import RigModel, rig_from_config
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("acquire_identification")
+log = rule_log(snakemake.log[0], "acquire_identification")
 
 machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
 settings = settings_from_config(snakemake.params.settings)
-nominal = Plant(machine_from_config(snakemake.params.machine_config, name=machine_name, source=snakemake.input.machine))
-rig = rig_from_config(snakemake.params.rig_config, snakemake.params.machine_config, source=snakemake.input.rig)
+as_built = snakemake.params.as_built_config  # planned with the drawing of the machine as built
+nominal = Plant(machine_from_config(as_built, name=machine_name, source=snakemake.input.as_built))
+rig = rig_from_config(snakemake.params.rig_config, as_built, source=snakemake.input.rig)
 started = time.perf_counter()
 setpoint_m = None
 if "center" in snakemake.input.keys():

@@ -1,18 +1,13 @@
 """Rule `calibrate`: magnetic center, thesis tables 6.1-6.3, stiffness change and figure, from the log alone."""
 
-import logging
-import sys
-
 import yaml
 
 from ambid.calibration import analyse_calibration, calibration_settings_from_config, read_calibration_log, stiffness_at_magnetic_center
-from ambid.io import atomic_path, write_tsv
+from ambid.io import atomic_path, rule_log, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plots import calibration_convergence, save_figure
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("calibrate")
+log = rule_log(snakemake.log[0], "calibrate")
 
 settings = calibration_settings_from_config(snakemake.params.settings)
 machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine)

@@ -1,17 +1,12 @@
 """Rule `compare`: one model variant against one identification run -> errors per channel, frequency and band, figures."""
 
-import logging
-import sys
-
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
-from ambid.io import read_parquet, read_yaml, write_parquet, write_tsv
+from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_compare, error_map, save_figure
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("compare")
+log = rule_log(snakemake.log[0], "compare")
 
 machine_name, run, variant = snakemake.wildcards.machine, snakemake.wildcards.run, snakemake.wildcards.variant
 settings = snakemake.params.settings

@@ -1,18 +1,13 @@
 """Rule `diagnose`: the effect a model variant lacks, from one identification run -> ranking, explanation, figure."""
 
-import logging
-import sys
-
 from ambid.compare import measured_channels, model_response
 from ambid.diagnose import diagnose, diagnosis_report, plant_with_effect
-from ambid.io import atomic_path, read_parquet, read_yaml, write_tsv
+from ambid.io import atomic_path, read_parquet, read_yaml, rule_log, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import residual_fingerprint, save_figure
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("diagnose")
+log = rule_log(snakemake.log[0], "diagnose")
 
 machine_name, run, variant = snakemake.wildcards.machine, snakemake.wildcards.run, snakemake.wildcards.variant
 floors, bands = snakemake.params.compare, list(snakemake.params.compare["bands_hz"]) + [float("inf")]

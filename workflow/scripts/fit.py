@@ -1,8 +1,5 @@
 """Rule `fit`: parametric models of every selected FRF channel (thesis ch. 5.1) -> features, models, figures."""
 
-import logging
-import sys
-
 import numpy as np
 import pandas as pd
 
@@ -10,14 +7,12 @@ from ambid.channel_fit import (FitError, feature_rows, fit_channel, known_respon
                                select_channels)
 from ambid.fit import classify_poles, levy_thesis
 from ambid.frf import channel
-from ambid.io import read_parquet, write_parquet, write_tsv
+from ambid.io import read_parquet, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, stabilization_diagram
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("fit")
+log = rule_log(snakemake.log[0], "fit")
 
 settings = snakemake.params.settings
 machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine)

@@ -1,22 +1,21 @@
 """Rule `frf`: SISO and MIMO ETFE of one identification run -> FRF Parquet and Bode plots."""
 
-import logging
-import sys
-
 import numpy as np
 
 from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
-from ambid.io import write_parquet
-from ambid.logs import read_identification_log
+from ambid.io import rule_log, write_parquet
+from ambid.logs import noise_from_scatter, read_identification_log
 from ambid.machine import RADIAL_AXES
 from ambid.plots import bode_measured, save_figure
 from ambid.uff import write_uff58
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("frf")
+log = rule_log(snakemake.log[0], "frf")
 
 frame, info = read_identification_log(snakemake.input.log)
+if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
+    frame = noise_from_scatter(frame, snakemake.input.log)
+    log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
+             ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
 arrays = log_arrays(frame)
 siso = siso_etfe(arrays)
 mimo = mimo_etfe(arrays, source=snakemake.input.log) if all(a in arrays for a in RADIAL_AXES) else None

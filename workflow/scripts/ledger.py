@@ -1,16 +1,11 @@
 """Rule `ledger`: the misfit of every model variant against every identification run of a machine, table and plot."""
 
-import logging
-import sys
-
 import pandas as pd
 
-from ambid.io import read_tsv, write_parquet, write_tsv
+from ambid.io import read_tsv, rule_log, write_parquet, write_tsv
 from ambid.plots import ledger, save_figure
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("ledger")
+log = rule_log(snakemake.log[0], "ledger")
 
 machine = snakemake.wildcards.machine
 parts = []

@@ -1,20 +1,15 @@
 """Rule `model`: one model variant of a machine -> mode table, plant FRF, stability, figures."""
 
-import logging
-import sys
-
 import pandas as pd
 
-from ambid.io import frf_frame, read_yaml, write_parquet, write_tsv
+from ambid.io import frf_frame, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.loop import stability_summary
 from ambid.machine import AXIAL_AXIS, RADIAL_AXES, machine_from_config
 from ambid.modes import mode_table
 from ambid.plant import Plant
 from ambid.plots import bode_matrix, bode_siso, mode_shapes, save_figure
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("model")
+log = rule_log(snakemake.log[0], "model")
 
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=snakemake.wildcards.machine,
                               source=snakemake.input.machine)

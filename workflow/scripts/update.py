@@ -1,23 +1,18 @@
 """Rule `update`: rotor model update (thesis ch. 5.2) from the fit stage's resonances -> updated machine, tables, figures."""
 
-import logging
-import sys
-
 import numpy as np
 import pandas as pd
 
 from ambid.compare import model_channels
 from ambid.frf import channel
-from ambid.io import read_parquet, write_parquet, write_tsv, write_yaml
+from ambid.io import read_parquet, rule_log, write_parquet, write_tsv, write_yaml
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
 from ambid.update import (UpdateSettings, comparison_rows, identifiability, update_channels, update_model,
                           update_problem, updated_machine_config)
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("update")
+log = rule_log(snakemake.log[0], "update")
 
 machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
 settings = UpdateSettings.from_config(snakemake.params.settings, snakemake.params.machine_update)

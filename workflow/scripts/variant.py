@@ -1,14 +1,9 @@
 """Rule `variant`: the machine config of one model variant (operating point, added effects, updates)."""
 
-import logging
-import sys
-
-from ambid.io import read_yaml, write_yaml
+from ambid.io import read_yaml, rule_log, write_yaml
 from ambid.variants import variant_config
 
-sys.stderr = open(snakemake.log[0], "w")
-logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
-log = logging.getLogger("variant")
+log = rule_log(snakemake.log[0], "variant")
 
 operating_point = None
 if "operating_point" in snakemake.input.keys():

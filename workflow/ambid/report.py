@@ -1,0 +1,294 @@
+"""One self-contained HTML report per machine: every stage's figures and tables, in thesis order.
+
+The report follows a machine from its measurements to the diagnosis of its
+model: calibration (thesis ch. 3, 6.1), identification (ch. 4, 6.2), the
+parametric fit (ch. 5.1), the rotor model update (ch. 5.2-5.3, 6.3), the model
+variants and the diagnosis loop (beyond the thesis).  Figures are embedded as
+PNG data, tables are written out, and nothing in the page depends on the time
+or place it was made, so the same results give the same bytes.  Captions are
+Markdown templates (``workflow/report/*.md``) with ``{machine}``, ``{run}`` and
+``{variant}`` fields; each names the thesis figure or table it corresponds to.
+"""
+
+import base64
+import html
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from .errors import AmbidError
+from .io import read_tsv
+
+__all__ = ["Figure", "Table", "Text", "Section", "markdown_html", "render_report", "machine_report"]
+
+
+@dataclass
+class Figure:
+    """A PNG figure and its caption (Markdown)."""
+
+    path: Path
+    caption: str = ""
+
+
+@dataclass
+class Table:
+    """A table and its caption (Markdown); ``source`` is the file it came from."""
+
+    frame: pd.DataFrame
+    caption: str = ""
+    source: str = ""
+
+
+@dataclass
+class Text:
+    """A block of Markdown."""
+
+    markdown: str
+
+
+@dataclass
+class Section:
+    """A titled part of the report; ``level`` 2 for a stage, 3 for a run or variant within it."""
+
+    title: str
+    blocks: list = field(default_factory=list)
+    level: int = 2
+
+    @property
+    def anchor(self):
+        return re.sub(r"[^a-z0-9]+", "-", self.title.lower()).strip("-")
+
+
+# ------------------------------------------------------------------------------ Markdown
+_INLINE = [
+    (re.compile(r"`([^`]+)`"), r"<code>\1</code>"),
+    (re.compile(r"\*\*([^*]+)\*\*"), r"<strong>\1</strong>"),
+]
+
+
+def _inline(text):
+    text = html.escape(text, quote=False)
+    for pattern, replacement in _INLINE:
+        text = pattern.sub(replacement, text)
+    return text
+
+
+def markdown_html(text):
+    """HTML of the Markdown ambid writes: headings, paragraphs, ``-`` lists, pipe tables, fenced code,
+    ``code`` and **bold**.
+
+    A small, strict subset (the diagnosis and the captions use nothing else);
+    every character of the text is escaped, so a file can never inject markup.
+    """
+    out, lines, i = [], text.splitlines(), 0
+    while i < len(lines):
+        line = lines[i]
+        if not line.strip():
+            i += 1
+        elif line.startswith("```"):
+            end = next((j for j in range(i + 1, len(lines)) if lines[j].startswith("```")), len(lines))
+            out.append("<pre><code>" + html.escape("\n".join(lines[i + 1:end]), quote=False) + "</code></pre>")
+            i = end + 1
+        elif line.startswith("#"):
+            level = min(len(line) - len(line.lstrip("#")) + 2, 6)  # '#' inside a section is an h3
+            out.append(f"<h{level}>{_inline(line.lstrip('#').strip())}</h{level}>")
+            i += 1
+        elif line.startswith("|"):
+            rows = []
+            while i < len(lines) and lines[i].startswith("|"):
+                cells = [cell.strip() for cell in lines[i].strip().strip("|").split("|")]
+                if not all(set(cell) <= set("-: ") for cell in cells):
+                    rows.append(cells)
+                i += 1
+            head = "".join(f"<th>{_inline(c)}</th>" for c in rows[0])
+            body = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in rows[1:])
+            out.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
+        elif line.startswith("- "):
+            items = []
+            while i < len(lines) and lines[i].startswith("- "):
+                items.append(f"<li>{_inline(lines[i][2:])}</li>")
+                i += 1
+            out.append("<ul>" + "".join(items) + "</ul>")
+        else:
+            paragraph = []
+            while i < len(lines) and lines[i].strip() and not lines[i].startswith(("#", "|", "- ", "```")):
+                paragraph.append(lines[i].strip())
+                i += 1
+            out.append(f"<p>{_inline(' '.join(paragraph))}</p>")
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------ HTML
+_STYLE = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
+h1 { border-bottom: 2px solid #444; } h2 { border-bottom: 1px solid #aaa; margin-top: 2em; }
+table { border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.85em; }
+th, td { border: 1px solid #ccc; padding: 2px 6px; text-align: right; } th { background: #eee; }
+td:first-child, th:first-child { text-align: left; }
+figure { margin: 1em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption, .caption { font-size: 0.9em; color: #444; }
+code { background: #f4f4f4; padding: 0 2px; } pre { background: #f4f4f4; padding: 0.5em; overflow-x: auto; }
+nav ul { columns: 2; } .source { color: #888; font-size: 0.8em; }
+"""
+
+
+def _block_html(block):
+    if isinstance(block, Figure):
+        data = base64.b64encode(Path(block.path).read_bytes()).decode("ascii")
+        return (f'<figure><img alt="{html.escape(Path(block.path).name)}" src="data:image/png;base64,{data}">'
+                f"<figcaption>{markdown_html(block.caption)}</figcaption></figure>")
+    if isinstance(block, Table):
+        table = block.frame.to_html(index=False, na_rep="", float_format=lambda x: f"{x:.4g}", border=0)
+        source = f'<div class="source">{html.escape(block.source)}</div>' if block.source else ""
+        return f'<div class="caption">{markdown_html(block.caption)}</div>{table}{source}'
+    return markdown_html(block.markdown)
+
+
+def render_report(title, sections, introduction=""):
+    """The report as one HTML document (figures embedded, no external resource)."""
+    contents = "".join(f'<li><a href="#{s.anchor}">{html.escape(s.title)}</a></li>' for s in sections if s.level == 2)
+    body = []
+    for section in sections:
+        body.append(f'<h{section.level} id="{section.anchor}">{html.escape(section.title)}</h{section.level}>')
+        body += [_block_html(block) for block in section.blocks]
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>\n"
+            f"<h1>{html.escape(title)}</h1>\n{markdown_html(introduction)}\n<nav><ul>{contents}</ul></nav>\n"
+            + "\n".join(body) + "\n</body></html>\n")
+
+
+# ------------------------------------------------------------------------------ a machine's report
+class _Captions:
+    """Caption templates (name -> Markdown), filled with the machine, run and variant."""
+
+    def __init__(self, templates, machine):
+        self.templates, self.machine = templates, machine
+
+    def __call__(self, name, **fields):
+        try:
+            return self.templates[name].format(machine=self.machine, **fields)
+        except (KeyError, IndexError, ValueError) as error:
+            raise AmbidError(f"caption template {name!r} cannot be filled: {error!r}") from None
+
+
+def _first_paragraph(markdown):
+    """The headline of a diagnosis: its first paragraph after the title."""
+    blocks = [b for b in markdown.split("\n\n") if b.strip() and not b.startswith("#")]
+    return blocks[0].strip() if blocks else ""
+
+
+def machine_report(machine, results_dir, calibration_runs=(), identification_runs=(), variants=("nominal",),
+                   updated=False, captions=None):
+    """Sections of the report of one machine, read from the workflow's results.
+
+    Parameters
+    ----------
+    machine : str
+    results_dir : str or Path
+        ``results/<machine>``.
+    calibration_runs, identification_runs : sequence of str
+    variants : sequence of str
+        Model variants in configured order (nominal first).
+    updated : bool
+        Whether the identification runs have an ``update`` stage.
+    captions : dict
+        Caption templates by name (``workflow/report/<name>.md``).
+
+    Returns
+    -------
+    (str, list of Section)
+        The introduction (Markdown) and the sections.
+    """
+    root, caption = Path(results_dir), _Captions(captions or {}, machine)
+
+    def table(path, text=""):
+        return Table(read_tsv(root / path), text, f"results/{machine}/{path}")
+
+    sections = []
+    summary = Section("Summary")
+    sections.append(summary)
+    for run in calibration_runs:
+        base = f"calibration/{run}"
+        center = read_tsv(root / base / "magnetic_center.tsv")
+        summary.blocks.append(Text(f"Magnetic center found by calibration run `{run}` [um]: " + ", ".join(
+            f"{a} {x * 1e6:+.2f} +- {u * 1e6:.3f}" for a, x, u in
+            zip(center["axis"], center["magnetic_center_m"], center["standard_uncertainty_m"])) + "."))
+        blocks = [Figure(root / base / "figures/convergence.png", caption("calibration_convergence", run=run)),
+                  table(f"{base}/magnetic_center.tsv", "Magnetic center and its standard uncertainty over the repetitions [m]."),
+                  table(f"{base}/pairs.tsv", "Rotor position from each bias-current pair [m] (thesis Table 6.2)."),
+                  table(f"{base}/repeatability.tsv", "Magnetic center of each repetition [m] (thesis Table 6.3)."),
+                  table(f"{base}/stiffness.tsv", "Current and position stiffness at the magnetic center and at the "
+                                                 "geometric center (thesis eq. 3.5-3.6).")]
+        if (root / base / "sensitivity.tsv").exists():
+            blocks.append(table(f"{base}/sensitivity.tsv", "The calibration run with wrong method parameters, scored "
+                                                           "against the virtual rig's truth [m] (beyond the thesis)."))
+        sections.append(Section(f"Calibration {run} (thesis ch. 3, 6.1)", blocks))
+    for run in identification_runs:
+        base = f"frf/{run}"
+        sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
+            Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
+            for name in ("radial_siso", "radial_mimo", "axial")]))
+        features = read_tsv(root / f"fit/{run}/features.tsv")
+        features = features[(features["estimator"] == "output_error")
+                            & features["kind"].isin(["resonance", "anti_resonance"])]
+        sections.append(Section(f"Parametric fit {run} (thesis ch. 5.1)", [
+            Table(features.drop(columns=["estimator"]), "Resonances (poles) and anti-resonances (zeros) of every fitted "
+                  "channel with their standard uncertainties (the measured columns of thesis Table 6.4 / 5.2).",
+                  f"results/{machine}/fit/{run}/features.tsv"),
+            Figure(root / f"fit/{run}/figures/bode_fit.png", caption("fit_bode", run=run)),
+            Figure(root / f"fit/{run}/figures/stabilization.png", caption("fit_stabilization", run=run))]))
+        if updated:
+            base = f"update/{run}"
+            comparison = read_tsv(root / base / "comparison.tsv")
+            first = comparison[(comparison["quantity"] == "frequency") & (comparison["root"] == "pole")].head(1)
+            for _, row in first.iterrows():
+                summary.blocks.append(Text(
+                    f"First flexible resonance in run `{run}`: measured {row['measured']:.1f} Hz, nominal model "
+                    f"{row['original']:.1f} Hz ({row['original_error_pct']:.1f} % off), updated model "
+                    f"{row['updated']:.1f} Hz ({row['error_pct']:.2f} % off)."))
+            sections.append(Section(f"Model update {run} (thesis ch. 5.2-5.3, 6.3)", [
+                table(f"{base}/comparison.tsv", "Measured features against the original and the updated model "
+                                                "(thesis Tables 6.4 and 6.5; reference rotor: Tables 5.2 and 5.3)."),
+                table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "
+                                               "resolution; `determined` is False where the data cannot fix a value."),
+                Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
+                Figure(root / base / "figures/youngs_modulus.png", caption("update_modulus", run=run)),
+                Figure(root / base / "figures/convergence.png", caption("update_convergence", run=run))]))
+    model = Section("Model variants", [Text(caption("variants"))])
+    sections.append(model)
+    for variant in variants:
+        base = f"model/{variant}"
+        blocks = [table(f"{base}/stability.tsv", "Closed-loop stability of the model variant per axis "
+                                                 "(spectral radius, sensitivity peak, ISO 14839-3 zone)."),
+                  Figure(root / base / "figures/plant_bode.png", caption("plant_bode", variant=variant)),
+                  Figure(root / base / "figures/axial_bode.png", caption("plant_bode", variant=variant))]
+        if variant == variants[0]:
+            blocks.append(Figure(root / base / "figures/mode_shapes.png", caption("mode_shapes", variant=variant)))
+        sections.append(Section(f"Model {variant}", blocks, level=3))
+    if identification_runs:
+        ledger = read_tsv(root / "ledger/ledger.tsv")
+        overall = ledger[ledger["output"] == "all"].drop(columns=["machine", "output", "input"])
+        summary.blocks.append(Table(overall, "Misfit of every model variant over every measured channel "
+                                             "(chi2 per point; excess over the noise floor of 1)."))
+        sections.append(Section("Diagnosis loop (beyond the thesis)", [
+            Text(caption("diagnosis_loop")),
+            Figure(root / "ledger/figures/ledger.png", caption("ledger")),
+            Table(overall, "Overall misfit per variant.", f"results/{machine}/ledger/ledger.tsv")]))
+    for run in identification_runs:
+        for variant in variants:
+            compare, diagnose = f"compare/{run}/{variant}", f"diagnose/{run}/{variant}"
+            diagnosis = (root / diagnose / "diagnosis.md").read_text()
+            if variant == variants[-1]:
+                summary.blocks.append(Text(f"Diagnosis of the last variant, `{variant}`, on run `{run}`: "
+                                           + _first_paragraph(diagnosis)))
+            sections.append(Section(f"{variant} against {run}", [
+                Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
+                Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
+                Text(caption("diagnosis", run=run, variant=variant)),
+                Text(diagnosis),
+                Figure(root / diagnose / "figures/fingerprint.png",
+                       caption("diagnose_fingerprint", run=run, variant=variant))], level=3))
+    introduction = caption("introduction")
+    return introduction, sections
