@@ -18,6 +18,7 @@ rule acquire_identification:
         as_built_config=as_built_config,
         rig_config=rig_config,
         settings=config["identification"],
+        calibration=config["calibration"],
         seed=run_seed,
         library=LIBRARY_DIGEST,
     log:
@@ -27,6 +28,7 @@ rule acquire_identification:
     threads: 1
     resources:
         mem_mb=2000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/acquire_identification.py"
 
@@ -51,6 +53,7 @@ rule acquire_calibration:
     threads: 1
     resources:
         mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/acquire_calibration.py"
 
@@ -77,5 +80,6 @@ rule calibration_sensitivity:
     threads: 1
     resources:
         mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/calibration_sensitivity.py"

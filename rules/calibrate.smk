@@ -21,5 +21,8 @@ rule calibrate:
     log:
         "logs/{machine}/calibrate_{run}.log",
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/calibrate.py"

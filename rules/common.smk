@@ -175,9 +175,13 @@ def variant_inputs(wildcards):
 
 
 def identification_center(wildcards):
-    """The magnetic center table an identification run is centred on (its ``calibration`` run), if any."""
+    """The calibration log whose magnetic center an identification run is centred on (its ``calibration`` run).
+
+    The bench computes the center from the log as it runs, with the drawing's bearing parameters, so the
+    acquisition does not wait for (or depend on) the model-side ``calibrate`` rule.
+    """
     cal = RUNS[(wildcards.machine, wildcards.run)].get("calibration")
-    return {"center": f"results/{wildcards.machine}/calibration/{cal}/magnetic_center.tsv"} if cal else {}
+    return {"calibration_log": f"data/{wildcards.machine}/{cal}/calibration.parquet"} if cal else {}
 
 
 def thesis_m_runs():

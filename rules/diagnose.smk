@@ -20,6 +20,9 @@ rule compare:
     benchmark:
         "logs/{machine}/compare_{run}_{variant}.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/compare.py"
 
@@ -42,6 +45,9 @@ rule diagnose:
     benchmark:
         "logs/{machine}/diagnose_{run}_{variant}.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/diagnose.py"
 
@@ -67,5 +73,8 @@ rule ledger:
     benchmark:
         "logs/{machine}/ledger.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/ledger.py"

@@ -21,5 +21,8 @@ rule fit:
     benchmark:
         "logs/{machine}/fit_{run}.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/fit.py"

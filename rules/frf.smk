@@ -16,6 +16,9 @@ rule frf:
     log:
         "logs/{machine}/frf_{run}.log",
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/frf.py"
 
@@ -33,5 +36,8 @@ rule import_thesis_m:
     params:
         library=LIBRARY_DIGEST,
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/import_thesis_m.py"

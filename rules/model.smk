@@ -16,6 +16,9 @@ rule variant:
     benchmark:
         "logs/{machine}/variant_{variant}.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/variant.py"
 
@@ -40,5 +43,6 @@ rule model:
     threads: 1
     resources:
         mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/model.py"

@@ -23,5 +23,6 @@ rule report:
     threads: 1
     resources:
         mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/report.py"

@@ -27,5 +27,8 @@ rule update:
     benchmark:
         "logs/{machine}/update_{run}.benchmark.tsv"
     threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/update.py"

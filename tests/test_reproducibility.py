@@ -1,0 +1,69 @@
+"""The whole workflow, twice from clean on a small configuration: the same bytes; then what a change re-runs."""
+
+import re
+import shutil
+
+import pytest
+import yaml
+
+from test_workflow import ROOT, demo20_on_its_rig, edit_config, snakemake
+
+pytestmark = pytest.mark.workflow
+
+ROOT_FILES = ("results", "data")
+
+
+def small_configuration(config):
+    """demo20 on its rig, every stage, with a shorter calibration and a one-step diagnosis."""
+    config["machines"] = {"demo20": config["machines"]["demo20"]}
+    demo20_on_its_rig(config)
+    config["calibration"].update(repetitions=2, average_s=0.3)
+    config["diagnose"]["sequence_length"] = 1
+
+
+def job_counts(output):
+    """Rule -> number of jobs from the 'Job stats' table of a dry run."""
+    table = output.split("Job stats:", 1)[1].split("total", 1)[0]
+    return {rule: int(count) for rule, count in re.findall(r"^(\w+)\s+(\d+)\s*$", table, re.M)}
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    """The small configuration run from clean in two directories."""
+    directories = []
+    for name in ("first", "second"):
+        workdir = tmp_path_factory.mktemp(name)
+        shutil.copytree(ROOT / "config", workdir / "config")
+        edit_config(workdir, small_configuration)
+        result = snakemake(workdir, "--cores", "2")
+        assert result.returncode == 0, result.stderr[-3000:]
+        directories.append(workdir)
+    return directories
+
+
+def test_two_clean_runs_give_the_same_bytes(two_runs):
+    first, second = two_runs
+    files = sorted(p.relative_to(first) for top in ROOT_FILES for p in (first / top).rglob("*") if p.is_file())
+    assert {p.suffix for p in files} >= {".parquet", ".tsv", ".png", ".html", ".yaml", ".md", ".m", ".uff"}
+    assert "results/demo20/report.html" in {str(p) for p in files}
+    assert files == sorted(p.relative_to(second) for top in ROOT_FILES for p in (second / top).rglob("*") if p.is_file())
+    different = [str(p) for p in files if (first / p).read_bytes() != (second / p).read_bytes()]
+    assert different == []
+
+
+def test_second_run_does_nothing_and_a_model_change_reruns_only_downstream(two_runs):
+    workdir = two_runs[0]
+    again = snakemake(workdir, "--dry-run")
+    assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
+    path = workdir / "config/machines/demo20.yaml"
+    machine = yaml.safe_load(path.read_text())
+    machine["materials"]["steel"]["youngs_modulus_pa"] *= 0.98  # one model parameter
+    path.write_text(yaml.safe_dump(machine))
+    dry = snakemake(workdir, "--dry-run")
+    assert dry.returncode == 0, dry.stderr[-3000:]
+    jobs = job_counts(dry.stdout + dry.stderr)
+    # the measurements and their FRF do not depend on the model: the rig is planned with its as-built drawing
+    assert not {"acquire_calibration", "acquire_identification", "frf"} & set(jobs), jobs
+    # everything that reads the machine file, and what follows from it
+    assert set(jobs) == {"calibrate", "calibration_sensitivity", "fit", "update", "variant", "model", "compare",
+                         "diagnose", "ledger", "report", "all"}, jobs
