@@ -15,6 +15,7 @@ from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
 from ambid.variants import NOMINAL, variant_chain
 
+
 def check_schema(instance, schema, source):
     """Validate against a JSON schema (filling its defaults); raise one ConfigError naming the file and key at fault."""
     try:
