@@ -67,3 +67,23 @@ def test_second_run_does_nothing_and_a_model_change_reruns_only_downstream(two_r
     # everything that reads the machine file, and what follows from it
     assert set(jobs) == {"calibrate", "calibration_sensitivity", "fit", "update", "variant", "model", "compare",
                          "diagnose", "ledger", "report", "all"}, jobs
+
+
+def test_the_report_covers_every_stage_with_thesis_references(two_runs):
+    page = (two_runs[0] / "results/demo20/report.html").read_text()
+    for title in ("Summary", "Calibration cal01", "Identification ident01", "Parametric fit ident01",
+                  "Model update ident01", "Model variants", "Diagnosis loop", "updated against ident01"):
+        assert f">{title}" in page, title
+    for reference in ("Fig. 6.2", "Table 6.3", "Fig. 6.3", "Fig. 6.6", "Fig. 6.8", "Fig. 6.9", "Table 6.4"):
+        assert reference in page, reference
+    figures = page.count('src="data:image/png;base64,')
+    assert figures >= 20 and "http" not in page.split("<body>", 1)[1]  # embedded, nothing fetched
+    assert "Missing: <code>" in page or "Nothing significant" in page  # the diagnoses, rendered
+
+
+def test_markdown_is_escaped():
+    from ambid.report import markdown_html
+
+    html = markdown_html("# T\n\n**bold** and `code` <script>x</script>\n\n| a | b |\n|---|---|\n| 1 | 2 |\n")
+    assert "<h3>T</h3>" in html and "<strong>bold</strong>" in html and "<code>code</code>" in html
+    assert "<script>" not in html and "&lt;script&gt;" in html and "<td>1</td>" in html
