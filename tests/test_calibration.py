@@ -80,7 +80,7 @@ def hs_calibration(hs_config):
     rig_config = yaml.safe_load(open(ROOT / "config/rigs/hs_eden_like.yaml"))
     rig_model = RigModel(rig_from_config(rig_config, hs_config))
     machine = machine_from_config(hs_config)
-    axes = [b.electromagnet for b in machine.radial_bearings for _ in (0, 1)]
+    axes = machine.radial_electromagnets
     settings = CalibrationSettings()
     log = run_calibration(rig_model, axes, settings, seed=11)
     return rig_model, axes, settings, log

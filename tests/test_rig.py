@@ -129,5 +129,5 @@ def test_model_side_never_reads_the_rig():
         assert "config/rigs" not in text and "from .rig" not in text and "ambid.rig" not in text, path.name
     for path in (ROOT / "workflow" / "ambid").glob("*.py"):
         assert "from .experiment" not in path.read_text(), path.name
-    for rules in ("model.smk", "calibrate.smk", "frf.smk", "fit.smk", "update.smk", "diagnose.smk"):
+    for rules in ("model.smk", "calibrate.smk", "frf.smk", "fit.smk", "update.smk", "diagnose.smk", "report.smk"):
         assert "rig" not in (ROOT / "rules" / rules).read_text()

@@ -116,6 +116,11 @@ class Machine:
         return next(b for b in self.radial_bearings if b.name == name)
 
     @property
+    def radial_electromagnets(self):
+        """The electromagnet of each radial control axis, in `RADIAL_AXES` order (DX, DY, NX, NY)."""
+        return tuple(b.electromagnet for b in self.radial_bearings for _ in ("x", "y"))
+
+    @property
     def sample_time_s(self):
         """Controller cycle [s] (the same for every axis)."""
         return self.radial_controllers[0].sample_time_s

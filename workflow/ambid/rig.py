@@ -186,7 +186,7 @@ class RigModel:
         plant = Plant(machine)
         self.plant = plant
         _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
-        nominal = [b.electromagnet for b in machine.radial_bearings for _ in (0, 1)] + [machine.axial_electromagnet]
+        nominal = [*machine.radial_electromagnets, machine.axial_electromagnet]
         self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
         self.true_bias_a = self.nominal_bias_a * (1 + imp.bias_current_error)
         self.actuators = ActuatorAxes.stack(nominal)

@@ -12,7 +12,7 @@ log = rule_log(snakemake.log[0], "acquire_calibration")
 settings = calibration_settings_from_config(snakemake.params.settings)
 as_built = snakemake.params.as_built_config
 machine = machine_from_config(as_built, name=snakemake.wildcards.machine, source=snakemake.input.as_built)
-method_axes = [b.electromagnet for b in machine.radial_bearings for _ in ("x", "y")]  # what the drawing says
+method_axes = machine.radial_electromagnets  # what the drawing says
 rig_model = RigModel(rig_from_config(snakemake.params.rig_config, as_built, source=snakemake.input.rig))
 
 

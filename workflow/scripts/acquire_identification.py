@@ -23,7 +23,7 @@ rig = rig_from_config(snakemake.params.rig_config, as_built, source=snakemake.in
 started = time.perf_counter()
 setpoint_m = None
 if "calibration_log" in snakemake.input.keys():  # the center the bench found, with the drawing's bearing parameters
-    method_axes = [b.electromagnet for b in nominal.machine.radial_bearings for _ in ("x", "y")]
+    method_axes = nominal.machine.radial_electromagnets
     frame, _ = read_calibration_log(snakemake.input.calibration_log)
     center = analyse_calibration(frame, method_axes, calibration_settings_from_config(snakemake.params.calibration),
                                  source=snakemake.input.calibration_log)["result"].set_index("axis")["magnetic_center_m"]

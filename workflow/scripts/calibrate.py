@@ -11,7 +11,7 @@ log = rule_log(snakemake.log[0], "calibrate")
 
 settings = calibration_settings_from_config(snakemake.params.settings)
 machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine)
-method_axes = [b.electromagnet for b in machine.radial_bearings for _ in ("x", "y")]
+method_axes = machine.radial_electromagnets
 frame, _ = read_calibration_log(snakemake.input.log)
 analysis = analyse_calibration(frame, method_axes, settings, source=snakemake.input.log)
 if analysis["not_converged_axes"]:
