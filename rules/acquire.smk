@@ -10,7 +10,7 @@ rule acquire_identification:
         unpack(identification_center),
         unpack(rig_files),
     wildcard_constraints:
-        run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
+        run="|".join(run for _, run in identification_runs("stepped_sine", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/identification.parquet",
         mfile="data/{machine}/{run}/identification.m",
@@ -31,6 +31,35 @@ rule acquire_identification:
         runtime=10,  # minutes (cluster executors)
     script:
         "../workflow/scripts/acquire_identification.py"
+
+
+rule acquire_multisine:
+    # random-phase multisines (coarse pass, its fit, a zoom pass around what the fit found), centred as above
+    input:
+        unpack(identification_center),
+        unpack(rig_files),
+    wildcard_constraints:
+        run="|".join(run for _, run in identification_runs("multisine", "rig")) or "no_rig_runs",
+    output:
+        log="data/{machine}/{run}/multisine.parquet",
+    params:
+        as_built_config=as_built_config,
+        rig_config=rig_config,
+        settings=config["multisine"],
+        fit=config["fit"],
+        calibration=config["calibration"],
+        seed=run_seed,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/acquire_multisine_{run}.log",
+    benchmark:
+        "logs/{machine}/acquire_multisine_{run}.benchmark.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,  # minutes (cluster executors)
+    script:
+        "../workflow/scripts/acquire_multisine.py"
 
 
 rule acquire_calibration:

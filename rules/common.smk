@@ -10,6 +10,7 @@ from snakemake.utils import validate
 from ambid.calibration import calibration_settings_from_config
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
+from ambid.multisine import multisine_settings_from_config
 from ambid.machine import machine_from_config
 from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
@@ -102,6 +103,8 @@ def check_variants(machine):
     if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
         raise ConfigError(f"machines.{machine}.operating_point", f"{cal!r} is not a calibration run of {machine}")
     for run, spec in (entry.get("runs") or {}).items():
+        if spec.get("method") == "multisine" and spec.get("format") == "m":
+            raise ConfigError(f"machines.{machine}.runs.{run}.format", "a multisine run's log is multisine.parquet, not .m")
         cal = spec.get("calibration")
         if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
             raise ConfigError(f"machines.{machine}.runs.{run}.calibration", f"{cal!r} is not a calibration run of {machine}")
@@ -111,6 +114,7 @@ for _machine in config["machines"]:
     check_variants(_machine)
 MODEL_VARIANTS = sorted({v for m in config["machines"] for v in variants_of(m)})
 IDENTIFICATION_SETTINGS = settings_from_config(config["identification"])
+MULTISINE_SETTINGS = multisine_settings_from_config(config["multisine"])
 CALIBRATION_SETTINGS = calibration_settings_from_config(config["calibration"])
 
 
@@ -194,6 +198,17 @@ def runs_of(kind, source=None):
     return [(m, r) for (m, r), spec in RUNS.items() if spec["kind"] == kind and source in (None, spec["source"])]
 
 
+def identification_runs(method, source=None):
+    """Identification runs of one method (``stepped_sine``, ``multisine``), optionally of one source."""
+    return [(m, r) for m, r in runs_of("identification", source) if RUNS[(m, r)].get("method", "stepped_sine") == method]
+
+
+def identification_log(machine, run):
+    """The raw log of an identification run: ``multisine.parquet`` or ``identification.parquet``."""
+    name = "multisine" if RUNS[(machine, run)].get("method", "stepped_sine") == "multisine" else "identification"
+    return f"data/{machine}/{run}/{name}.parquet"
+
+
 CALIBRATION_OUTPUTS = [
     "offsets.tsv",
     "pairs.tsv",
@@ -215,6 +230,9 @@ MODEL_OUTPUTS = [
     "figures/mode_shapes.png",
 ]
 FRF_OUTPUTS = ["frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
+MULTISINE_FRF_OUTPUTS = ["frf.parquet", "frf.uff", "distortion.tsv", "figures/radial_mimo.png", "figures/axial.png",
+                         "figures/distortion.png"]
+METHODS_OUTPUTS = ["comparison.tsv", "figures/methods.png"]
 FIT_OUTPUTS = ["features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
 DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]
@@ -239,12 +257,17 @@ def machine_outputs(machine):
     identification = runs_of_machine(machine)
     calibration = runs_of_machine(machine, "calibration")
     rig_runs = {run for m, run in runs_of("identification", "rig") + runs_of("calibration", "rig") if m == machine}
-    outputs = [f"data/{machine}/{run}/identification.{suffix}" for run in identification if run in rig_runs
-               for suffix in ("parquet", "m")]
+    multisine = {run for m, run in identification_runs("multisine") if m == machine}
+    outputs = [f"data/{machine}/{run}/identification.{suffix}" for run in identification
+               if run in rig_runs and run not in multisine for suffix in ("parquet", "m")]
+    outputs += [identification_log(machine, run) for run in identification if run in rig_runs and run in multisine]
     outputs += [f"results/{machine}/calibration/{run}/{name}" for run in calibration for name in CALIBRATION_OUTPUTS]
     outputs += [f"results/{machine}/calibration/{run}/sensitivity.tsv" for run in calibration if run in rig_runs]
-    outputs += [f"results/{machine}/{stage}/{run}/{name}" for run in identification
-                for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS)) for name in names]
+    outputs += [f"results/{machine}/frf/{run}/{name}" for run in identification
+                for name in (MULTISINE_FRF_OUTPUTS if run in multisine else FRF_OUTPUTS)]
+    outputs += [f"results/{machine}/fit/{run}/{name}" for run in identification for name in FIT_OUTPUTS]
+    if multisine:
+        outputs += [f"results/{machine}/methods/{name}" for name in METHODS_OUTPUTS]
     if config["machines"][machine].get("update"):
         outputs += [f"results/{machine}/update/{run}/{name}" for run in identification for name in UPDATE_OUTPUTS]
     outputs += [f"results/{machine}/model/{variant}/{name}" for variant in variants_of(machine) for name in MODEL_OUTPUTS]

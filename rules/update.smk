@@ -19,6 +19,7 @@ rule update:
     params:
         machine_config=machine_config,
         machine_update=lambda wildcards: config["machines"][wildcards.machine].get("update", {}),
+        run_modes=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)].get("update_modes"),
         settings=config["update"],
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,

@@ -225,19 +225,19 @@ def _check_row(frame, mask, source, what, per_channel=False):
         raise LogError(source, f"{_where(frame, mask)}: {what}{note}")
 
 
-def _check_columns(frame, source):
-    missing = [name for name in COLUMNS if name not in frame.columns]
+def _check_columns(frame, source, columns=COLUMNS, what="an identification log"):
+    missing = [name for name in columns if name not in frame.columns]
     if missing:
-        raise LogError(source, f"missing column(s) {missing}; an identification log has {list(COLUMNS)}")
-    extra = [name for name in frame.columns if name not in COLUMNS]
+        raise LogError(source, f"missing column(s) {missing}; {what} has {list(columns)}")
+    extra = [name for name in frame.columns if name not in columns]
     if extra:
-        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)}")
+        raise LogError(source, f"unexpected column(s) {extra}; {what} has {list(columns)}")
     required = {
         "str": pd.api.types.is_string_dtype,
         "int": pd.api.types.is_integer_dtype,
         "float": pd.api.types.is_float_dtype,
     }
-    for name, kind in COLUMNS.items():
+    for name, kind in columns.items():
         if not required[kind](frame[name]):
             raise LogError(source, f"column {name!r} has dtype {frame[name].dtype}, expected {kind}")
         missing_values = frame[name].isna().to_numpy()
@@ -375,3 +375,222 @@ def noise_from_scatter(frame, source="<frame>"):
         raise LogError(source, f"channels {', '.join(silent)} do not scatter at all (constant or copied values)")
     frame = frame.assign(noise_std=frame["channel"].map(estimates).astype(float))
     return frame.sort_index()
+
+
+# ================================================================================ multisine log
+# A second log kind, for random-phase multisine runs (`ambid.multisine`): what a record holds is the
+# per-period spectrum, so that the FRF stage can recompute everything (the BLA, the noise from the
+# periods, the nonlinear distortion from the realizations, the even and odd detection lines).
+
+MULTISINE_KIND = "multisine_log"
+
+#: The excitation's own complex amplitudes E_u per axis (the design: zero where an axis is not excited).
+REFERENCE_CHANNELS = tuple(f"E_{axis}" for axis in ALL_AXES)
+
+#: Roles of a line: excited, an odd harmonic the random grid left out, an even harmonic beside an excited one.
+LINE_ROLES = ("excited", "odd_detection", "even_detection")
+
+#: Column name -> kind of dtype required, of a multisine log.
+MULTISINE_COLUMNS = {
+    "pass": "str",
+    "realization": "int",
+    "experiment": "int",
+    "period": "int",
+    "line": "int",
+    "frequency_hz": "float",
+    "role": "str",
+    "channel": "str",
+    "re": "float",
+    "im": "float",
+}
+MULTISINE_UNITS = {
+    "frequency_hz": "Hz",
+    "re": "SI (A for U2_*, I_* and E_*, m for V2_*)",
+    "im": "SI (A for U2_*, I_* and E_*, m for V2_*)",
+    "realization": "-",
+    "experiment": "-",
+    "period": "-",
+    "line": "-",
+}
+_RECORD = ["pass", "realization", "experiment", "period"]
+
+
+def multisine_frame(passes):
+    """Long-format multisine log from the passes of a run.
+
+    Parameters
+    ----------
+    passes : list of dict
+        One per pass (``coarse``, ``zoom``), with ``name`` (str), ``lines``
+        (int array (L,), harmonic numbers of the pass' ``f0``), ``frequency_hz``
+        (array (L,) = lines * f0), ``role`` (str array (L,), `LINE_ROLES`),
+        ``spectra`` (complex array (R, E, P, 20, L): per realization,
+        experiment and period, the Fourier coefficient of each of `CHANNELS`
+        at each line, phase referred to the start of the excitation, SI units)
+        and ``reference`` (complex array (R, E, 5, L): the complex amplitude of
+        each axis' excitation at each line).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns of `MULTISINE_COLUMNS`; one row per (pass, realization,
+        experiment, period, line, channel), the reference channels
+        `REFERENCE_CHANNELS` repeated in every period.
+    """
+    parts = []
+    names = np.array(CHANNELS + REFERENCE_CHANNELS, dtype=object)
+    for item in passes:
+        spectra, reference = np.asarray(item["spectra"]), np.asarray(item["reference"])
+        realizations, experiments, periods, n_channels, n_lines = spectra.shape
+        if n_channels != len(CHANNELS) or reference.shape != (realizations, experiments, len(ALL_AXES), n_lines):
+            raise LogError("multisine_frame", f"pass {item['name']!r}: spectra {spectra.shape} and reference "
+                           f"{reference.shape} do not fit (R, E, P, {len(CHANNELS)}, L) and (R, E, {len(ALL_AXES)}, L)")
+        values = np.concatenate([spectra, np.repeat(reference[:, :, None], periods, axis=2)], axis=3)  # (R,E,P,25,L)
+        values = np.moveaxis(values, 3, 4)  # (R, E, P, L, 25)
+        r, e, p, k, c = np.indices(values.shape).reshape(5, -1)
+        parts.append(pd.DataFrame({
+            "pass": np.full(r.size, item["name"], dtype=object),
+            "realization": r.astype(np.int64),
+            "experiment": e.astype(np.int64),
+            "period": p.astype(np.int64),
+            "line": np.asarray(item["lines"], dtype=np.int64)[k],
+            "frequency_hz": np.asarray(item["frequency_hz"], dtype=np.float64)[k],
+            "role": np.asarray(item["role"], dtype=object)[k],
+            "channel": names[c],
+            "re": values.real.ravel().astype(np.float64),
+            "im": values.imag.ravel().astype(np.float64),
+        }))
+    return pd.concat(parts, ignore_index=True)
+
+
+def write_multisine_log(frame, path, metadata=None):
+    """Validate and write a multisine log as Parquet (atomically); see `write_identification_log`."""
+    validate_multisine_log(frame, str(path))
+    channel_units = {name: ("A" if name.startswith("E_") else channel_unit(name)) for name in CHANNELS + REFERENCE_CHANNELS}
+    write_parquet(frame[list(MULTISINE_COLUMNS)].reset_index(drop=True), path, units=MULTISINE_UNITS,
+                  kind=MULTISINE_KIND, metadata={**(metadata or {}), "channel_units": channel_units})
+
+
+def read_multisine_log(path):
+    """Read and validate a multisine log; returns ``(frame, info)`` as `read_identification_log`."""
+    frame, info = read_parquet(path, kind=MULTISINE_KIND)
+    validate_multisine_log(frame, str(path))
+    return frame, info
+
+
+def _where_records(frame, mask):
+    """Rows selected by ``mask``, grouped by (pass, realization, experiment, period), as message text."""
+    positions = np.flatnonzero(np.asarray(mask))
+    groups = {}
+    for position in positions:
+        key = tuple(frame[name].iat[position] for name in _RECORD)
+        groups.setdefault(key, []).append(position)
+    parts = [f"{_ranges(rows)} (pass={key[0]}, realization={key[1]}, experiment={key[2]}, period={key[3]})"
+             for key, rows in list(groups.items())[:_MAX_GROUPS_QUOTED]]
+    if len(groups) > _MAX_GROUPS_QUOTED:
+        parts.append(f"and {len(groups) - _MAX_GROUPS_QUOTED} more records")
+    return ", ".join(parts)
+
+
+def _fail(frame, mask, source, what):
+    mask = np.asarray(mask, dtype=bool)
+    if mask.any():
+        first = int(np.flatnonzero(mask)[0])
+        raise LogError(source, f"{_where_records(frame, mask)}: {what} (first: line {frame['line'].iat[first]}, "
+                               f"channel {frame['channel'].iat[first]})")
+
+
+def validate_multisine_log(frame, source):
+    """Check a multisine log against its contract (schema version 1).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+    source : str
+        Where the frame comes from (file name), quoted in the message.
+
+    Raises
+    ------
+    LogError
+        Naming ``source`` and the offending rows (positional, 0-based) with
+        their pass, realization, experiment and period, when a column is
+        missing, extra or of the wrong dtype; a channel or role is unknown; a
+        value is not finite; an index is negative, ``line < 1`` or
+        ``frequency_hz <= 0``; a pass' lines are not harmonics of one ``f0``
+        (``frequency_hz / line`` constant); a row is duplicated or a (record,
+        line) lacks a channel; the records of a pass differ in their lines or
+        periods, a pass has fewer than 2 periods (no noise estimate) or an
+        incomplete realization x experiment grid; a line's role differs
+        between records; a reference channel changes between periods; an
+        excited line has no excitation, a detection line has one, or an axis
+        excited at a line reads a control current U2 of exactly 0.
+    """
+    _check_columns(frame, source, MULTISINE_COLUMNS, "a multisine log")
+    frame = frame.reset_index(drop=True)
+    if frame.empty:
+        raise LogError(source, "no rows (a multisine log holds at least one pass)")
+    known = CHANNELS + REFERENCE_CHANNELS
+    _fail(frame, ~frame["channel"].isin(known).to_numpy(), source, f"unknown channel; known: {', '.join(known)}")
+    _fail(frame, ~frame["role"].isin(LINE_ROLES).to_numpy(), source, f"unknown role; known: {', '.join(LINE_ROLES)}")
+    for name in ("frequency_hz", "re", "im"):
+        _fail(frame, ~np.isfinite(frame[name].to_numpy(dtype=float)), source, f"{name} is not finite")
+    for name in ("realization", "experiment", "period"):
+        _fail(frame, frame[name].to_numpy() < 0, source, f"{name} < 0 (0-based)")
+    _fail(frame, frame["line"].to_numpy() < 1, source, "line < 1 (lines are harmonic numbers of the period)")
+    _fail(frame, frame["frequency_hz"].to_numpy() <= 0, source, "frequency_hz <= 0")
+    f0 = frame["frequency_hz"].to_numpy() / frame["line"].to_numpy()
+    for name, group in frame.groupby("pass", sort=False):
+        reference = float(np.median(f0[group.index]))
+        off = np.zeros(len(frame), dtype=bool)
+        off[group.index] = np.abs(f0[group.index] / reference - 1) > 1e-9
+        _fail(frame, off, source, f"frequency_hz is not line x f0 of pass {name!r} (f0 = {reference:.9g} Hz)")
+    duplicated = frame.duplicated(_RECORD + ["line", "channel"], keep=False).to_numpy()
+    _fail(frame, duplicated, source, "duplicate channel within one (record, line)")
+    sizes = frame.groupby(_RECORD + ["line"], sort=False)["channel"].transform("size").to_numpy()
+    incomplete = sizes != len(known)
+    if incomplete.any():
+        first = int(np.flatnonzero(incomplete)[0])
+        key = frame.loc[first, _RECORD + ["line"]]
+        same = np.ones(len(frame), dtype=bool)
+        for name in _RECORD + ["line"]:
+            same &= (frame[name] == key[name]).to_numpy()
+        absent = [name for name in known if name not in set(frame.loc[same, "channel"])]
+        raise LogError(source, f"{_where_records(frame, same)}: line {key['line']} lacks channel(s) {', '.join(absent)}")
+    for name, group in frame.groupby("pass", sort=False):
+        lines_per_record = group.groupby(_RECORD)["line"].nunique()
+        if lines_per_record.nunique() != 1 or lines_per_record.iloc[0] != group["line"].nunique():
+            raise LogError(source, f"pass {name!r}: the records do not all hold the same lines "
+                                   f"({lines_per_record.min()} to {lines_per_record.max()} of {group['line'].nunique()})")
+        periods = group.groupby(["realization", "experiment"])["period"].nunique()
+        if periods.min() < 2 or periods.nunique() != 1:
+            raise LogError(source, f"pass {name!r}: every (realization, experiment) needs the same number (>= 2) of "
+                                   f"periods (the noise is their scatter); found {sorted(set(periods.tolist()))}")
+        pairs = group.groupby(["realization", "experiment"]).ngroups
+        if pairs != group["realization"].nunique() * group["experiment"].nunique():
+            raise LogError(source, f"pass {name!r}: not every realization has every experiment")
+        roles = group.groupby("line")["role"].nunique()
+        if (roles > 1).any():
+            line = int(roles[roles > 1].index[0])
+            raise LogError(source, f"pass {name!r}: line {line} has different roles in different records")
+    is_reference = frame["channel"].str.startswith("E_").to_numpy()
+    amplitude = np.hypot(frame["re"].to_numpy(dtype=float), frame["im"].to_numpy(dtype=float))
+    reference = frame[is_reference]
+    spread = reference.groupby(["pass", "realization", "experiment", "line", "channel"])[["re", "im"]].transform("nunique")
+    changing = np.zeros(len(frame), dtype=bool)
+    changing[reference.index] = (spread.max(axis=1) > 1).to_numpy()
+    _fail(frame, changing, source, "a reference channel E_* changes between periods (it is the design, one per record)")
+    excitation = pd.Series(np.where(is_reference, amplitude, 0.0)).groupby(
+        [frame["pass"], frame["line"]]).transform("max").to_numpy()
+    excited = (frame["role"] == "excited").to_numpy()
+    _fail(frame, excited & (excitation == 0), source, "an excited line has no excitation (all E_* are 0)")
+    _fail(frame, ~excited & (excitation > 0), source, "a detection line carries excitation (E_* not 0)")
+    # an axis excited at a line must move its control current there: U2 of exactly 0 is a dead channel
+    axis_of = frame["channel"].str.slice(3).where(frame["channel"].str.startswith("U2_"))
+    key = [frame["pass"], frame["realization"], frame["experiment"], frame["line"]]
+    drive = {axis: pd.Series(np.where(frame["channel"] == f"E_{axis}", amplitude, 0.0)).groupby(key).transform("max")
+             for axis in ALL_AXES}
+    driven = np.zeros(len(frame), dtype=bool)
+    for axis in ALL_AXES:
+        driven |= ((axis_of == axis).to_numpy() & (drive[axis].to_numpy() > 0))
+    _fail(frame, driven & (amplitude == 0), source,
+          "the control current U2 of an axis excited at this line is 0 (zero excitation: no FRF point)")

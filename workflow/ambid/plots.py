@@ -17,7 +17,7 @@ from .io import atomic_path  # noqa: E402
 
 __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
            "calibration_convergence", "youngs_modulus", "update_convergence", "bode_compare", "error_map",
-           "residual_fingerprint", "ledger", "save_figure"]
+           "residual_fingerprint", "ledger", "bla_distortion", "method_comparison", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -377,5 +377,79 @@ def ledger(table, title):
     axis.grid(True, which="both", alpha=0.3)
     axis.legend(fontsize=8)
     axis.set_title(title)
+    figure.tight_layout()
+    return figure
+
+
+def bla_distortion(channels, spectra, title):
+    """The multisine's measured floors (Pintelon & Schoukens 2012, Fig. 3.9 style).
+
+    Top row, per channel: ``|G_BLA|``, its noise standard deviation and the
+    standard deviation of its systematic (nonlinear) error.  Bottom row, per
+    output: the period-averaged output at the excited lines, at the left-out
+    odd lines (odd nonlinear distortion) and at the even lines (even
+    distortion), with the noise level of the period mean.
+
+    Parameters
+    ----------
+    channels : list of (label, frequency_hz, values, std, systematic_std)
+    spectra : list of (label, frequency_hz, level_m, role, noise_m)
+        ``role`` per line as in `ambid.logs.LINE_ROLES`.
+    """
+    columns = max(len(channels), len(spectra), 1)
+    figure, axes = plt.subplots(2, columns, figsize=(3.4 * columns + 0.6, 6.0), squeeze=False)
+    for k, (label, frequency, values, std, systematic) in enumerate(channels):
+        axis = axes[0, k]
+        axis.loglog(frequency, np.abs(values), "k.", ms=2.5, label="|G_BLA|")
+        axis.loglog(frequency, std, ".", color="C0", ms=2, label="noise std")
+        axis.loglog(frequency, systematic, ".", color="C3", ms=2, label="systematic std")
+        axis.set_title(label, fontsize=9)
+        axis.grid(True, which="both", alpha=0.3)
+    for k, (label, frequency, level, role, noise) in enumerate(spectra):
+        axis = axes[1, k]
+        for name, style, text in (("excited", dict(color="k", ms=2.5), "excited"),
+                                  ("odd_detection", dict(color="C3", ms=3), "odd detection"),
+                                  ("even_detection", dict(color="C0", ms=2), "even detection")):
+            pick = role == name
+            axis.loglog(frequency[pick], np.maximum(level[pick], 1e-14), ".", label=text, **style)
+        axis.loglog(frequency[role != "excited"], noise[role != "excited"], "-", color="0.6", lw=0.6, label="noise")
+        axis.set_title(label, fontsize=9)
+        axis.set_xlabel("frequency [Hz]")
+        axis.grid(True, which="both", alpha=0.3)
+    for row in range(2):
+        for k in range(columns):
+            if not axes[row, k].has_data():
+                axes[row, k].set_axis_off()
+    axes[0, 0].set_ylabel("[m/A]")
+    axes[1, 0].set_ylabel("output amplitude [m]")
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    axes[1, 0].legend(fontsize=7, loc="lower left")
+    figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def method_comparison(runs, channel_label, title):
+    """One channel measured by several identification runs: relative noise and systematic standard deviations.
+
+    Parameters
+    ----------
+    runs : list of (label, frequency_hz, values, std, systematic_std)
+        ``systematic_std`` NaN where the run has no estimate.
+    """
+    figure, (magnitude, relative) = plt.subplots(2, 1, figsize=(8, 6.4), sharex=True)
+    for k, (label, frequency, values, std, systematic) in enumerate(runs):
+        magnitude.loglog(frequency, np.abs(values), ".", ms=2.5, color=f"C{k}", label=label)
+        relative.loglog(frequency, std / np.abs(values), ".", ms=2.5, color=f"C{k}", label=f"{label}: noise")
+        if np.any(np.isfinite(systematic)):
+            relative.loglog(frequency, systematic / np.abs(values), "x", ms=2.5, color=f"C{k}",
+                            label=f"{label}: systematic")
+    magnitude.set_ylabel(f"|{channel_label}| [m/A]")
+    relative.set_ylabel("standard deviation / |G|")
+    relative.set_xlabel("frequency [Hz]")
+    for axis in (magnitude, relative):
+        axis.grid(True, which="both", alpha=0.3)
+        axis.legend(fontsize=7)
+    figure.suptitle(title)
     figure.tight_layout()
     return figure

@@ -180,7 +180,7 @@ def _first_paragraph(markdown):
 
 
 def machine_report(machine, results_dir, calibration_runs=(), identification_runs=(), variants=("nominal",),
-                   updated=False, captions=None):
+                   updated=False, captions=None, multisine_runs=()):
     """Sections of the report of one machine, read from the workflow's results.
 
     Parameters
@@ -195,6 +195,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         Whether the identification runs have an ``update`` stage.
     captions : dict
         Caption templates by name (``workflow/report/<name>.md``).
+    multisine_runs : sequence of str
+        The identification runs made by multisine (their FRF stage is the BLA).
 
     Returns
     -------
@@ -225,11 +227,24 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
             blocks.append(table(f"{base}/sensitivity.tsv", "The calibration run with wrong method parameters, scored "
                                                            "against the virtual rig's truth [m] (beyond the thesis)."))
         sections.append(Section(f"Calibration {run} (thesis ch. 3, 6.1)", blocks))
+    if multisine_runs:
+        sections.append(Section("Identification methods: stepped sine and multisine (beyond the thesis)", [
+            Text(caption("methods")),
+            table("methods/comparison.tsv", "Machine time and the median relative noise and systematic standard "
+                                            "deviations of the radial diagonal FRFs per band, per run."),
+            Figure(root / "methods/figures/methods.png", caption("methods_figure"))]))
     for run in identification_runs:
         base = f"frf/{run}"
-        sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
-            Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
-            for name in ("radial_siso", "radial_mimo", "axial")]))
+        if run in multisine_runs:
+            sections.append(Section(f"Identification {run} (multisine BLA, beyond the thesis)", [
+                Figure(root / base / f"figures/{name}.png", caption("frf", run=run)) for name in ("radial_mimo", "axial")]
+                + [Figure(root / base / "figures/distortion.png", caption("distortion", run=run)),
+                   table(f"{base}/distortion.tsv", "Output at the excited, odd-detection and even-detection lines of "
+                                                   "the coarse pass (rms per line [m]) and their ratios [dB].")]))
+        else:
+            sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
+                Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
+                for name in ("radial_siso", "radial_mimo", "axial")]))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]

@@ -87,6 +87,7 @@ def measured_features(frame, channels, modes):
     channels : list of (output, input)
     modes : int
         Use flexible modes (resonance / anti-resonance numbers) 1 .. ``modes`` of each channel.
+        Roots whose damping ratio the fit determines worse than to its own value are left out.
 
     Returns
     -------
@@ -98,6 +99,9 @@ def measured_features(frame, channels, modes):
     rows = frame[(frame["estimator"] == "output_error") & frame["kind"].isin(["resonance", "anti_resonance"])]
     rows = rows[np.array([(o, i) in wanted for o, i in zip(rows["output"], rows["input"])], dtype=bool)]
     rows = rows[(rows["damping_ratio"] > 0) & (rows["damping_ratio"] < LIGHT_DAMPING)]
+    # a root the fit cannot place (damping uncertain by more than its value: a near-cancelling pole-zero
+    # pair of a noisy channel) is no feature of the machine
+    rows = rows[~(rows["damping_std"] > rows["damping_ratio"])]
     # renumber the lightly damped ones per channel and root, lowest first (the fit numbers every resonance)
     rows = rows.sort_values(["output", "input", "root", "frequency_hz"]).copy()
     rows["number"] = rows.groupby(["output", "input", "root"]).cumcount() + 1

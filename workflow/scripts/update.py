@@ -15,7 +15,9 @@ from ambid.update import (UpdateSettings, comparison_rows, identifiability, upda
 log = rule_log(snakemake.log[0], "update")
 
 machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
-settings = UpdateSettings.from_config(snakemake.params.settings, snakemake.params.machine_update)
+settings = UpdateSettings.from_config(snakemake.params.settings, {**snakemake.params.machine_update,
+                                                                  **({"modes": snakemake.params.run_modes}
+                                                                     if snakemake.params.run_modes else {})})
 machine_config = snakemake.params.machine_config
 machine = machine_from_config(machine_config, name=machine_name, source=snakemake.input.machine)
 features, _ = read_parquet(snakemake.input.features, kind="fit_features")
