@@ -296,3 +296,59 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     assert "**Missing: `element_stiffness[design]`**" in text and "name: element_stiffness" in text
     ledger = pd.read_csv(workdir / "results/demo20/ledger/ledger.tsv", sep="\t").set_index(["variant", "output"])
     assert ledger.loc[("updated", "all"), "excess"] < 0.01 * ledger.loc[("nominal", "all"), "excess"]
+
+
+def test_multisine_run_on_the_rig_to_fit_and_the_methods_table(workdir):
+    """A multisine run of demo20 on its rig (short settings, same code path): log, BLA with its floors, fit, methods."""
+    def change(config):
+        config["machines"]["demo20"]["runs"]["ms01"] = {"kind": "identification", "source": "rig", "seed": 3,
+                                                        "method": "multisine"}
+        config["multisine"].update(frequency_resolution_hz=5.0, radial_band_hz=[5.0, 800.0], axial_band_hz=[5.0, 50.0],
+                                   zoom_resolution_min_hz=1.0, settle_s=0.3, crest_iterations=10)
+
+    edit_config(workdir, change)
+    targets = ["results/demo20/frf/ms01/frf.parquet", "results/demo20/frf/ms01/distortion.tsv",
+               "results/demo20/fit/ms01/features.tsv", "results/demo20/methods/comparison.tsv"]
+    result = snakemake(workdir, *targets)
+    assert result.returncode == 0, result.stderr[-3000:]
+    frame, info = read_parquet(workdir / "data/demo20/ms01/multisine.parquet", kind="multisine_log")
+    assert set(frame["pass"]) == {"coarse", "zoom"} and info["metadata"]["machine_time_s"] > 0
+    assert "truth" not in json.dumps(info["metadata"])  # the log does not leak the rig's truth
+    frf, frf_info = read_parquet(workdir / targets[0], kind="frf")
+    assert {"mimo", "siso", "current"} <= set(frf["estimator"]) and "systematic_std" in frf_info["units"]
+    assert (frf["systematic_std"].dropna() >= 0).all() and frf["systematic_std"].notna().any()
+    methods = pd.read_csv(workdir / targets[3], sep="\t")
+    assert methods.set_index("run").loc["ms01", "method"] == "multisine"
+    assert methods.set_index("run").loc["thesis01", "method"] == "stepped sine"
+    assert (workdir / "results/demo20/methods/figures/methods.png").stat().st_size > 10_000
+
+
+def test_multisine_log_with_a_dead_channel_names_file_and_rows(workdir):
+    """A user's multisine log (source data) whose excited control current reads 0: one message, nothing written."""
+    import numpy as np
+
+    from ambid.io import write_parquet
+    from ambid.logs import MULTISINE_UNITS, multisine_frame
+    from ambid.machine import machine_from_config
+    from ambid.multisine import MultisineSettings, design_multisine, pass_record
+    from ambid.plant import Plant
+
+    plant = Plant(machine_from_config(yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text())))
+    design = design_multisine(plant, MultisineSettings(frequency_resolution_hz=20.0, radial_band_hz=(20.0, 400.0),
+                                                       axial_band_hz=(20.0, 60.0), levels=(1.0,), crest_iterations=0),
+                              seed=1)
+    spectra = np.ones((2, 4, 2, 20, design.grid.lines.size), dtype=complex) * (1e-6 + 1e-7j)
+    spectra[0, 1, :, 2, :] = 0.0  # U2_NX of realization 0, experiment 1 reads nothing
+    frame = multisine_frame([pass_record(design, spectra)])
+    folder = workdir / "data/demo20/ms02"
+    folder.mkdir(parents=True)
+    write_parquet(frame, folder / "multisine.parquet", units=MULTISINE_UNITS, kind="multisine_log")
+    edit_config(workdir, lambda c: c["machines"]["demo20"]["runs"].update(
+        ms02={"kind": "identification", "source": "data", "method": "multisine"}))
+    result = snakemake(workdir, "results/demo20/frf/ms02/frf.parquet")
+    text = result.stdout + result.stderr
+    messages = [line for line in text.splitlines() if line.startswith("ambid error")]
+    assert result.returncode != 0 and len(messages) == 1, text[-3000:]
+    assert "data/demo20/ms02/multisine.parquet" in messages[0] and "experiment=1" in messages[0]
+    assert "control current U2" in messages[0]
+    assert not (workdir / "results/demo20/frf/ms02/frf.parquet").exists()

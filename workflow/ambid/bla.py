@@ -123,13 +123,16 @@ def realization_levels(reference):
 
 
 def _smooth_relative(excess, reference, half_width=2):
-    """Running mean over ``2 half_width + 1`` neighbouring lines of ``excess / |reference|^2``, times ``|reference|^2``."""
+    """Mean over the neighbouring lines ``k - half_width .. k + half_width`` (those that exist) of
+    ``excess / |reference|^2``, times ``|reference|^2`` (lines on the first axis)."""
     scale = np.maximum(np.abs(reference) ** 2, 1e-300)
     relative = excess / scale
-    kernel = np.ones(2 * half_width + 1)
-    total = np.apply_along_axis(lambda v: np.convolve(v, kernel, mode="same"), 0, relative)
-    count = np.convolve(np.ones(relative.shape[0]), kernel, mode="same").reshape((-1,) + (1,) * (relative.ndim - 1))
-    return total / count * scale
+    n = relative.shape[0]
+    padded = np.concatenate([np.zeros((1,) + relative.shape[1:]), np.cumsum(relative, axis=0)])
+    low = np.clip(np.arange(n) - half_width, 0, n)
+    high = np.clip(np.arange(n) + half_width + 1, 0, n)
+    count = (high - low).reshape((-1,) + (1,) * (relative.ndim - 1))
+    return (padded[high] - padded[low]) / count * scale
 
 
 def _combine(estimates, noise_var, levels):
