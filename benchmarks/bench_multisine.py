@@ -149,8 +149,9 @@ def fitted(table, plant, f1):
     return pd.DataFrame(rows), np.array(damping)
 
 
-def update(machine, model, features, modes=3, truth_rig=None):
-    settings = UpdateSettings.from_config(WORKFLOW["update"], {**WORKFLOW["machines"][machine]["update"], "modes": modes})
+def update(machine, model, features, modes=3, truth_rig=None, per_element=True):
+    settings = UpdateSettings.from_config(WORKFLOW["update"], {**WORKFLOW["machines"][machine]["update"], "modes": modes,
+                                                               "per_element": per_element})
     if truth_rig is not None:  # the truth's exact features: what these features can determine at best
         features = reference_features(Plant(truth_rig.rig.machine), update_channels(settings.channels), 3000.0)
     problem = update_problem(machine_from_config(model, name=machine), features, settings)
@@ -160,7 +161,9 @@ def update(machine, model, features, modes=3, truth_rig=None):
     for variable in problem.variables:
         if variable.kind == "stiffness":
             scale = TRUTH_SCALE[machine][variable.tag]
-            truth.append(scale[int(variable.name.split("[")[1].split("]")[0])] if isinstance(scale, list) else scale)
+            if isinstance(scale, list):  # per element: its own factor; per tag: their mean
+                scale = scale[int(variable.name.split("[")[1].split("]")[0])] if "[" in variable.name else np.mean(scale)
+            truth.append(scale)
         else:
             truth.append(np.nan)
     return problem, result, rows, summary, np.array(truth)
@@ -227,6 +230,7 @@ def machine_benchmark(machine, seeds, stepped_seeds):
     t0 = time.perf_counter()
     report_update("rig data", *update(machine, model, ms["features"]))
     report_update("the truth's exact features", *update(machine, model, None, truth_rig=rig_model))
+    report_update("rig data, one modulus per tag", *update(machine, model, ms["features"], per_element=False))
     print(f"   ({time.perf_counter() - t0:.0f} s)")
 
 

@@ -287,3 +287,38 @@ def test_identification_with_zoom_on_the_nonlinear_rig(demo_plant, demo_rig):
     assert np.sum(np.abs(zoomed - truth) < 5) > np.sum(np.abs(passes[0]["frequency_hz"] - truth) < 5)
     assert np.all(np.diff(zoomed) > 0)
     assert np.isfinite(table["systematic_std"]).any()
+
+
+def test_stepped_sine_zoom_merges_into_one_valid_log(demo_plant):
+    """Zoom after a stepped-sine pass: dense steps in the bands, coarse ones there dropped, one valid log."""
+    from ambid.excitation import SteppedSineSettings, StepPlan, run_stepped_sine
+    from ambid.logs import identification_frame, validate_identification_log
+    from ambid.zoom import merge_stepped, stepped_zoom_plan
+
+    rig = rig_model("demo20")
+    fast = SteppedSineSettings(settle_min_s=0.03, settle_max_s=0.1, measure_min_s=0.02, axes=("DX", "NX"))
+    coarse_f = np.linspace(400.0, 500.0, 6)
+    coarse = StepPlan(np.repeat(["DX", "NX"], 6), np.tile(np.arange(6), 2), np.tile(coarse_f, 2), np.full(12, 0.5))
+    dense = stepped_zoom_plan(demo_plant, [(450.0, 460.0)], fast, points_per_band=5)
+    assert set(dense.axis) == {"DX", "NX"} and np.allclose(np.unique(dense.frequency_hz), np.linspace(450, 460, 5))
+    first, _ = run_stepped_sine(rig, coarse, fast, seed=1)
+    second, _ = run_stepped_sine(rig, dense, fast, seed=2)
+    merged = merge_stepped(first, second)
+    frame = identification_frame(merged)
+    validate_identification_log(frame, "merged")
+    grid = frame[(frame["excited_axis"] == "DX") & (frame["channel"] == "U2_DX")]["frequency_hz"].to_numpy()
+    assert np.all(np.diff(grid) > 0) and grid.size == 6 - 1 + 5  # the coarse 460 Hz step lies in the band
+
+
+def test_per_axis_design_gives_siso_and_mimo(demo_plant):
+    """One axis per experiment (as the stepped sine): the SISO ratios and the MIMO plant, on the linear rig."""
+    rig = rig_model("demo20", quiet=True)
+    design = design_multisine(demo_plant, replace(SMALL, design="per_axis"), seed=2)
+    assert design.experiments == 5
+    spectra, _ = run_multisine(rig, design, noise=False, nonlinear=False)
+    table, estimates = multisine_frf([pass_record(design, spectra)], design="per_axis")
+    assert {"siso", "mimo", "current"} <= set(table["estimator"])
+    assert ("NX", "DX") in estimates["siso"] and len(estimates["siso"]) == 16
+    radial = estimates["radial"]
+    truth = rig.sampled_frequency_response(radial.frequency_hz)[:, :4, :4]
+    assert_allclose(radial.plant, truth, rtol=2e-4, atol=2e-4 * np.abs(truth).max())

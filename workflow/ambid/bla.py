@@ -20,12 +20,21 @@ periods, ``U_m = mean_p U_mp``, and with the E experiments as columns::
   ``max(sigma^2 - sigma_n^2, 0)``, and its level in one realization
   ``sigma_S^2 = R max(sigma^2 - sigma_n^2, 0)`` (eq. 3.50-3.53).
 
-``sigma_S`` is the FRF table's ``systematic_std``: the size of what the
-nonlinearity adds at this excitation level, the scale of the difference
-between the BLA and the small-signal linearization (the BLA's bias has the
-same origin and order, sec. 3.4.3), so the comparison's uncertainty
-``hypot(std, systematic_std)`` covers it where a constant floor was needed
-before.  ``std`` stays the noise.
+* **Level dependence** (sec. 3.5): the BLA depends on the excitation's power
+  spectrum.  For an AMB the force law's position stiffness grows with the
+  mean-square coil current, so every line's rms current biases the BLA at
+  low frequencies, and near a lightly damped resonance the smallest shift
+  shows: a deterministic error the scatter of same-level realizations cannot
+  see.  With realizations at a lower relative level ``l`` (`ambid.multisine`
+  ``levels``) the change ``B = (G - G_l) / (1 - l^2)`` measures it (`_combine`).
+
+The FRF table's ``std`` is the noise of the BLA at the top level and
+``systematic_std`` the standard deviation of its systematic (nonlinear) error:
+the level dependence's power (noise removed) plus ``sigma_S^2 / n``, or, with
+one level only, ``sigma_S`` itself (the distortion's level stands for the BLA's
+bias, of the same origin and order, sec. 3.4.3).  The comparison's
+uncertainty ``hypot(std, systematic_std)`` then covers the nonlinear error
+where a constant floor was needed before.
 
 Even and odd distortion (sec. 4.2.7): the output at the odd random grid's
 detection lines, above the noise, is the nonlinear distortion itself: at the
@@ -66,11 +75,12 @@ class GroupBLA:
     frequency_hz : array (L,)
     plant : complex array (L, n, n)
         BLA of V2 (rows) against U2 (columns) [m/A].
-    noise_std, distortion_std : arrays (L, n, n)
-        Noise standard deviation of the BLA, and ``sigma_S``, the standard
+    noise_std, distortion_std, systematic_std : arrays (L, n, n)
+        Noise standard deviation of the BLA; ``sigma_S``, the standard
         deviation of the stochastic nonlinear distortion of one realization
-        (NaN with one realization).
-    current, current_noise_std, current_distortion_std : arrays (L, n, n)
+        (NaN with one realization at the top level); the standard deviation of
+        the BLA's systematic error (`_combine`).
+    current, current_noise_std, current_distortion_std, current_systematic_std : arrays (L, n, n)
         The same for the differential coil currents ``(I_upper - I_lower) / 2`` against U2 [A/A].
     condition : array (L,)
         Condition number of U (median over the realizations).
@@ -78,6 +88,8 @@ class GroupBLA:
         Magnitude of the measured dynamic compliance E_u -> V2 (BLA over the
         realizations) [m/A]; NaN where the reference excitation is not logged.
     realizations : int
+    levels : array
+        The relative excitation levels of the realizations.
     """
 
     def __init__(self, **values):

@@ -10,6 +10,19 @@ are stored as ``re`` / ``im`` columns in SI units, with the standard deviation
 ``noise_std`` of each coefficient.  `validate_identification_log` checks the
 contract on writing and on reading, so a malformed log fails with the rows at
 fault instead of corrupting an FRF downstream.
+
+The multisine log (kind ``multisine_log``, below) is the second log kind, for
+random-phase multisine runs (`ambid.multisine`): one row per pass (``coarse``,
+``zoom``), realization, experiment, period, line and channel, the line's
+``frequency_hz`` (a harmonic ``line`` of the pass' ``f0``) and ``role``
+(excited, odd or even detection line), and the period's Fourier coefficient
+``re``/``im`` of each of `CHANNELS` plus the excitation's own complex
+amplitude per axis, `REFERENCE_CHANNELS` (the design).  The per-period
+spectra at the excited and detection lines are the compact record from which
+the FRF stage recomputes the BLA, its noise (periods), its nonlinear error
+(realizations, levels) and the distortion levels (detection lines);
+`validate_multisine_log` checks it the same way, errors naming the file and
+the rows with their pass, realization, experiment and period.
 """
 
 import numpy as np
@@ -30,6 +43,15 @@ __all__ = [
     "read_identification_log",
     "validate_identification_log",
     "noise_from_scatter",
+    "MULTISINE_KIND",
+    "MULTISINE_COLUMNS",
+    "MULTISINE_UNITS",
+    "REFERENCE_CHANNELS",
+    "LINE_ROLES",
+    "multisine_frame",
+    "write_multisine_log",
+    "read_multisine_log",
+    "validate_multisine_log",
 ]
 
 KIND = "identification_log"

@@ -21,7 +21,9 @@ periodic with period ``1 / f0``.  Its design follows Pintelon & Schoukens
   realizations: the best linear approximation (BLA) and its nonlinear
   distortion are averages and variances over the realizations (sec. 3.4).
 * **P periods** of each realization after a settling time: the scatter between
-  the periods is the noise (sec. 2.5).
+  the periods is the noise (sec. 2.5).  The realizations cycle through relative
+  rms ``levels`` (default 1 and 0.5): the BLA's change with the level is the
+  deterministic part of the nonlinear error (`ambid.bla`).
 * **Orthogonal multisines** (sec. 3.7, Dobrowiecki et al. 2006): the radial
   axes are excited together, in experiment ``e`` with the signs ``T[e, i]``
   of a Hadamard matrix (a DFT matrix for group sizes without one), so ``E``
@@ -30,14 +32,21 @@ periodic with period ``1 / f0``.  Its design follows Pintelon & Schoukens
   other excited line of the radial grid) and is excited in every experiment;
   ``per_axis`` instead excites one axis per experiment, as the stepped sine does.
 * **Amplitude spectrum shaped to the plant**: ``a_k ~ |C_aa(f_k)|^-alpha`` with
-  the nominal model's dynamic compliance ``C`` (E_u -> V2, thesis Table 4.1),
-  more power where the compliance is low.  ``alpha = 1/2`` minimizes the sum
-  of the lines' relative FRF variances for a given power; ``alpha = 1`` is the
-  stepped sine's flat response.  The level is the largest at which neither
-  the excitation's peak exceeds its limit (a fraction of the bias current) nor the nominal model's
-  predicted position peak ``response_max_m``.  A *level check* first plays one
-  period of the first realization and scales the level down where the measured
-  response exceeds the prediction (a model's resonance in the wrong place).
+  the nominal model's dynamic compliance ``C`` (E_u -> V2, thesis Table 4.1,
+  smoothed over +-10 % in frequency: the model's resonances are what is
+  uncertain), more power where the compliance is low, as the stepped sine
+  plans its amplitudes.  ``alpha = 1/2`` minimizes the sum of the lines'
+  relative FRF variances for a given power; ``alpha = 1`` is the stepped
+  sine's flat response.  The first level is the largest at which no axis'
+  excitation peak exceeds its limit (a fraction of its bias current, at most
+  ``amplitude_max_a``) and the predicted position peak ``response_max_m``;
+  a *level check* then plays one period of the first experiment and sets the
+  level from the measured response, as the stepped sine adapts its amplitude
+  (a model's resonance in the wrong place cannot overdrive the machine).
+* **Zoom** (`identify_multisine`): the coarse pass is fitted, and a second
+  pass excites only narrow bands around the resonances and anti-resonances
+  the fit found (`ambid.zoom`), shaped and levelled with the coarse pass'
+  measured compliance.
 * **Crest factor** ``max |x| / rms(x)`` reduced by iterative clipping with
   amplitude restoration (Van der Ouderaa, Schoukens & Renneboog 1988) from
   the random start, which keeps the phases of different realizations random.
@@ -56,14 +65,12 @@ from .errors import ConfigError, settings_from_mapping
 from .loop import axial_transfer_functions, transfer_functions
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
-__all__ = ["MultisineSettings", "multisine_settings_from_config", "ORTHOGONAL", "PER_AXIS", "ROLES", "harmonic_grid",
+__all__ = ["MultisineSettings", "multisine_settings_from_config", "ORTHOGONAL", "PER_AXIS", "harmonic_grid",
            "orthogonal_matrix", "reduce_crest_factor", "crest_factor", "MultisineDesign", "design_multisine",
            "zoom_design", "nominal_compliance", "run_multisine", "period_spectra", "pass_record", "measured_compliance",
            "identify_multisine"]
 
 ORTHOGONAL, PER_AXIS = "orthogonal", "per_axis"
-#: Role of a stored line: excited, an odd line the random grid left out, an even line next to an excited one.
-ROLES = ("excited", "odd_detection", "even_detection")
 
 
 @dataclass(frozen=True)
@@ -153,7 +160,7 @@ class MultisineSettings:
     crest_iterations: int = 40
     level_check: bool = True
     zoom: bool = True
-    zoom_lines_per_bandwidth: float = 3.0
+    zoom_lines_per_bandwidth: float = 2.0
     zoom_lines_per_band: int = 15
     zoom_width: float = 4.0
     zoom_min_width: float = 0.01
@@ -163,7 +170,7 @@ class MultisineSettings:
     zoom_realizations: int = 2
     zoom_levels: tuple = (1.0, 0.5)
     zoom_shaping_exponent: float = 0.0
-    zoom_settle_decays: float = 5.0
+    zoom_settle_decays: float = 4.0
 
     def __post_init__(self):
         def band_ok(band):
@@ -226,7 +233,7 @@ class Grid:
     lines : int array (L,)
         Harmonic numbers of ``f0``, ascending.
     role : str array (L,)
-        One of `ROLES`.
+        One of `ambid.logs.LINE_ROLES`.
     excites : bool array (L, 5)
         Whether axis ``ALL_AXES[a]`` is excited at line ``l``.
     """

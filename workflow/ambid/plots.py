@@ -394,7 +394,7 @@ def bla_distortion(channels, spectra, title):
     ----------
     channels : list of (label, frequency_hz, values, std, systematic_std)
     spectra : list of (label, frequency_hz, level_m, role, noise_m)
-        ``role`` per line as in `ambid.logs.LINE_ROLES`.
+        ``role`` per line as in `ambid.logs.LINE_ROLES` (other values: not drawn, e.g. another axis' lines).
     """
     columns = max(len(channels), len(spectra), 1)
     figure, axes = plt.subplots(2, columns, figsize=(3.4 * columns + 0.6, 6.0), squeeze=False)
@@ -412,7 +412,8 @@ def bla_distortion(channels, spectra, title):
                                   ("even_detection", dict(color="C0", ms=2), "even detection")):
             pick = role == name
             axis.loglog(frequency[pick], np.maximum(level[pick], 1e-14), ".", label=text, **style)
-        axis.loglog(frequency[role != "excited"], noise[role != "excited"], "-", color="0.6", lw=0.6, label="noise")
+        detection = np.isin(role, ("odd_detection", "even_detection"))
+        axis.loglog(frequency[detection], noise[detection], "-", color="0.6", lw=0.6, label="noise")
         axis.set_title(label, fontsize=9)
         axis.set_xlabel("frequency [Hz]")
         axis.grid(True, which="both", alpha=0.3)

@@ -1,5 +1,8 @@
 """Zoom: where a coarse identification pass is refined by a dense one (either method), and the merge of both.
 
+Multisine runs zoom in `ambid.multisine.identify_multisine`; for the stepped
+sine, `stepped_zoom_plan` gives the dense steps and `merge_stepped` one log.
+
 After a coarse pass the FRF is fitted (`ambid.channel_fit.fit_channel`, the fit
 stage's estimator, with the nominal model's known parts); every lightly damped
 resonance and anti-resonance of the fitted channels gets a band of half width
@@ -16,7 +19,7 @@ from .channel_fit import FitError, fit_channel, known_response, rigid_pole_hz, s
 from .frf import channel
 from .modal_features import LIGHT_DAMPING
 
-__all__ = ["fitted_features", "zoom_bands", "band_lines", "outside_bands"]
+__all__ = ["fitted_features", "zoom_bands", "band_lines", "outside_bands", "stepped_zoom_plan", "merge_stepped"]
 
 
 def fitted_features(table, plant, channels="same_plane", estimator=None, max_relative_std=0.5, **fit_options):
@@ -160,3 +163,52 @@ def outside_bands(frequency_hz, dense_hz):
     covered = inside & (right_hz - left_hz < np.abs(spacing))
     exact = np.isin(frequency_hz, dense_hz)
     return ~(covered | exact)
+
+
+# ------------------------------------------------------------------------------ the stepped sine's zoom
+def stepped_zoom_plan(plant, bands_hz, settings, points_per_band=15, axes=None):
+    """A dense stepped-sine pass over zoom bands (`ambid.excitation.StepPlan`), the same steps on every axis.
+
+    Parameters
+    ----------
+    plant : ambid.plant.Plant
+        The nominal model (start amplitudes, as the coarse pass).
+    bands_hz : list of (low, high)
+    settings : ambid.excitation.SteppedSineSettings
+    points_per_band : int
+        Linearly spaced steps per band.
+    axes : sequence of str, optional
+        Default the radial axes of ``settings.axes``.
+    """
+    from .excitation import StepPlan, initial_amplitudes
+    from .machine import RADIAL_AXES
+
+    axes = [a for a in settings.axes if a in RADIAL_AXES] if axes is None else list(axes)
+    frequency = np.unique(np.concatenate([np.linspace(low, high, points_per_band) for low, high in bands_hz]))
+    return StepPlan(np.repeat(axes, frequency.size), np.tile(np.arange(frequency.size), len(axes)),
+                    np.tile(frequency, len(axes)),
+                    np.concatenate([initial_amplitudes(plant, axis, frequency, settings) for axis in axes]))
+
+
+def merge_stepped(coarse, dense):
+    """One stepped-sine log from a coarse and a dense pass: per axis, the coarse steps the dense ones
+    cover give way (`outside_bands`), and the steps are renumbered in frequency order.
+
+    Parameters
+    ----------
+    coarse, dense : list of dict
+        Step records of `ambid.excitation.run_stepped_sine`.
+
+    Returns
+    -------
+    list of dict
+        Copies of the records kept, with ``step`` the index in the merged grid of their axis.
+    """
+    merged = []
+    for axis in dict.fromkeys(r["excited_axis"] for r in coarse + dense):
+        first = sorted((r for r in coarse if r["excited_axis"] == axis), key=lambda r: r["frequency_hz"])
+        second = [r for r in dense if r["excited_axis"] == axis]
+        keep = outside_bands(np.array([r["frequency_hz"] for r in first]), np.array([r["frequency_hz"] for r in second]))
+        records = sorted([r for r, k in zip(first, keep) if k] + second, key=lambda r: r["frequency_hz"])
+        merged += [{**record, "step": k} for k, record in enumerate(records)]
+    return merged

@@ -64,7 +64,8 @@ def with_systematic(output, input_axis):
 spectra = []
 for axis in radial:
     level, noise = line_levels(coarse["spectra"], axis)
-    spectra.append((f"V2_{axis} (coarse pass)", coarse["frequency_hz"], level, coarse["role"], noise))
+    own = np.where((coarse["role"] == "excited") & ~coarse["excites"][:, ALL_AXES.index(axis)], "other", coarse["role"])
+    spectra.append((f"V2_{axis} (coarse pass)", coarse["frequency_hz"], level, own, noise))
 save_figure(bla_distortion([with_systematic(a, a) for a in radial], spectra, f"{title}: noise and nonlinear distortion"),
             snakemake.output.distortion_figure, dpi)
 log.info("FRF written: %d rows", len(table))
