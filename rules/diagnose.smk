@@ -33,6 +33,10 @@ rule diagnose:
         machine="results/{machine}/model/{variant}/machine.yaml",
     output:
         candidates="results/{machine}/diagnose/{run}/{variant}/candidates.tsv",
+        joint="results/{machine}/diagnose/{run}/{variant}/joint.tsv",
+        cells="results/{machine}/diagnose/{run}/{variant}/cells.tsv",
+        findings="results/{machine}/diagnose/{run}/{variant}/findings.tsv",
+        verdict="results/{machine}/diagnose/{run}/{variant}/verdict.tsv",
         text="results/{machine}/diagnose/{run}/{variant}/diagnosis.md",
         fingerprint="results/{machine}/diagnose/{run}/{variant}/figures/fingerprint.png",
     params:
@@ -56,6 +60,11 @@ rule ledger:
     input:
         summaries=lambda wildcards: [
             f"results/{wildcards.machine}/compare/{run}/{variant}/summary.tsv"
+            for run in runs_of_machine(wildcards.machine)
+            for variant in variants_of(wildcards.machine)
+        ],
+        verdicts=lambda wildcards: [
+            f"results/{wildcards.machine}/diagnose/{run}/{variant}/verdict.tsv"
             for run in runs_of_machine(wildcards.machine)
             for variant in variants_of(wildcards.machine)
         ],

@@ -6,11 +6,14 @@ rule frf:
         log="data/{machine}/{run}/identification.parquet",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
+        floor="results/{machine}/frf/{run}/floor.tsv",
+        findings="results/{machine}/frf/{run}/findings.tsv",
         uff="results/{machine}/frf/{run}/frf.uff",
         radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
     params:
+        floor=config["frf"],
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
     log:

@@ -8,6 +8,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 from ambid.errors import AmbidError, LogError
 from ambid.logs import (
     CHANNELS,
+    COLUMNS,
+    OPTIONAL_COLUMNS,
     channel_unit,
     identification_frame,
     noise_from_scatter,
@@ -63,12 +65,12 @@ def test_channels_and_units():
 
 
 def test_frame_shape_order_and_dtypes(frame, steps):
-    assert list(frame.columns) == COLUMNS
-    assert frame.shape == (2 * N_STEPS * 20, 9)
+    assert list(frame.columns) == list(COLUMNS) + list(OPTIONAL_COLUMNS)
+    assert frame.shape == (2 * N_STEPS * 20, 10)
     assert list(frame["excited_axis"].iloc[::20]) == ["DX"] * N_STEPS + ["DY"] * N_STEPS
     assert_array_equal(frame["step"].iloc[::20], list(range(N_STEPS)) * 2)
     assert list(frame["channel"]) == list(CHANNELS) * 2 * N_STEPS
-    for name in ("step", "attempts"):
+    for name in ("step", "attempts", "level"):
         assert frame[name].dtype == np.int64
     for name in ("frequency_hz", "amplitude_a", "re", "im", "noise_std"):
         assert frame[name].dtype == np.float64
@@ -99,7 +101,7 @@ def test_round_trip(frame, tmp_path):
     path = tmp_path / "identification.parquet"
     write_identification_log(frame, path, {"machine": "demo20", "run": "r1", "seed": 7, "settings": {"cycles": 20}})
     back, info = read_identification_log(path)
-    assert list(back.columns) == COLUMNS
+    assert list(back.columns) == list(COLUMNS) + list(OPTIONAL_COLUMNS)
     assert_array_equal(back["excited_axis"], frame["excited_axis"])
     assert_array_equal(back["channel"], frame["channel"])
     for name in COLUMNS[1:4] + COLUMNS[5:]:

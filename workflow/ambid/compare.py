@@ -6,10 +6,10 @@ only SISO runs exist), the axial plant and the coil-current responses
 ``I_<axis>`` (commanded -> measured coil current, the amplifier alone).
 
 For every channel ``G_meas(f)`` with standard uncertainty ``sigma(f)`` (the
-complex standard deviation of the ETFE, ``E|n|^2 = sigma^2``, inflated by a
-relative floor for what the noise does not cover: the stepped sine's amplitude
-nonlinearity and the sampled-data approximation, ``sqrt(sigma^2 + (floor
-|G_meas|)^2)``) and the model's ``G_model(f)`` (`model_response`: structural
+complex standard deviation of the ETFE's noise, ``E|n|^2 = sigma^2``, combined
+with the systematic error the FRF stage measured from the data,
+``sqrt(std^2 + systematic_std^2)``: the stepped sine's amplitude nonlinearity,
+`ambid.floor`) and the model's ``G_model(f)`` (`model_response`: structural
 plant with its effects times the digital loop's zero-order hold, as the
 measurement sees it):
 
@@ -28,15 +28,14 @@ import pandas as pd
 
 from .effects import COIL_CURRENT_EFFECTS, series_state_space
 from .errors import AmbidError
+from .floor import band_labels, frequency_bands
 from .frf import channel
 from .loop import zero_order_hold
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 from .plant import zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "DEFAULT_BANDS_HZ"]
-
-DEFAULT_BANDS_HZ = (0.0, 10.0, 100.0, 300.0, 1000.0, np.inf)
+           "current_channel", "channel_family"]
 
 
 class CompareError(AmbidError):
@@ -48,20 +47,23 @@ def current_channel(axis):
     return f"I_{axis}"
 
 
+def channel_family(output):
+    """Family of a compared channel by its output: ``currents`` (``I_<axis>``), ``axial`` (``Z``) or ``positions``."""
+    return "currents" if output.startswith("I_") else "axial" if output == AXIAL_AXIS else "positions"
+
+
 def measured_channels(table, position_floor=0.0, current_floor=0.0):
     """Every logged channel of an FRF table, with the uncertainty the comparison uses.
 
     Parameters
     ----------
     table : pandas.DataFrame
-        `ambid.frf.frf_table` of one run.
+        `ambid.frf.frf_table` of one run; its ``systematic_std`` (`ambid.floor`)
+        is added in quadrature to the noise ``std``.
     position_floor, current_floor : float
-        Systematic relative uncertainty added in quadrature to the ETFE's noise
-        of the position (plant) and coil-current channels.  The plant's covers
-        the force law's nonlinearity at the stepped sine's amplitudes and the
-        sampled-data approximation of `model_response` (about 1-2 %, measured on
-        a rig whose model is exact); the coil currents are linear and modelled
-        exactly, so theirs can be ten times smaller.
+        Relative systematic uncertainty of the position (plant) and coil-current
+        channels for rows whose ``systematic_std`` is NaN or absent (a table made
+        without `ambid.floor`, e.g. in a study); the FRF stage fills every row.
 
     Returns
     -------
@@ -79,10 +81,11 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
     wanted = [row for row in wanted if row in logged]
     out = {}
     for estimator, output, input_axis in wanted:
-        frequency, values, std = channel(table, estimator, output, input_axis)
+        frequency, values, std, systematic = channel(table, estimator, output, input_axis, systematic=True)
         key = (current_channel(output) if estimator == "current" else output, input_axis)
         floor = current_floor if estimator == "current" else position_floor
-        out[key] = (frequency, values, np.hypot(std, floor * np.abs(values)))
+        systematic = np.where(np.isfinite(systematic), systematic, floor * np.abs(values))
+        out[key] = (frequency, values, np.hypot(std, systematic))
     if not out:
         raise CompareError("the FRF table holds no channel to compare")
     return out
@@ -93,8 +96,8 @@ def model_response(plant, channels):
 
     Positions: the plant's FRF times the zero-order hold (`model_channels`).  Coil
     currents: the amplifier chain of the axis (the `COIL_CURRENT_EFFECTS`)
-    discretized exactly with the hold, as the rig's sampled current sees the
-    commanded one; 1 without one.
+    discretized exactly with the hold and sampled at the start of the cycle
+    (`_sampled_chain`); one cycle's delay without one.
 
     Parameters
     ----------
@@ -121,14 +124,26 @@ def model_response(plant, channels):
 
 
 def _sampled_coil_current(plant, axis, frequency_hz):
-    a, b, c, d = series_state_space([e.siso_state_space() for e in plant.input_effects
-                                     if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)])
+    chain = [e for e in plant.input_effects if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)]
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    return plant.cached(("coil", repr(chain), frequency_hz.tobytes()),
+                        lambda: _sampled_chain(chain, plant.machine.sample_time_s, frequency_hz))
+
+
+def _sampled_chain(chain, sample_time_s, frequency_hz):
+    """The coil current sampled at the start of a cycle against the command U2: ``C (zI - Phi)^-1 Gamma + D / z``.
+
+    The amplifier chain discretized exactly with the hold; its direct term sees the
+    command of the cycle before (the PLC samples before it outputs), so an ideal
+    amplifier is one cycle behind, the limit of a fast one.
+    """
+    a, b, c, d = series_state_space([e.siso_state_space() for e in chain])
+    z = np.exp(2j * np.pi * frequency_hz * sample_time_s)
     if a.shape[0] == 0:
-        return np.full(len(frequency_hz), complex(d[0, 0]))
-    transition, gamma = zoh_discretize(a, b, plant.machine.sample_time_s)
-    z = np.exp(2j * np.pi * np.asarray(frequency_hz) * plant.machine.sample_time_s)
+        return d[0, 0] / z
+    transition, gamma = zoh_discretize(a, b, sample_time_s)
     resolvent = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - transition, gamma.astype(complex))
-    return (c @ resolvent)[:, 0, 0] + d[0, 0]
+    return (c @ resolvent)[:, 0, 0] + d[0, 0] / z
 
 
 def model_channels(plant, frequency_hz, channels):
@@ -173,16 +188,34 @@ def channel_errors(measured, model):
     return pd.concat(rows, ignore_index=True)
 
 
-def summarize(errors, bands_hz=DEFAULT_BANDS_HZ):
+def summarize(errors, bands_hz=None):
     """One row per channel and band, per channel (band ``all``) and overall (channel ``all``).
 
-    Columns ``output, input, band, points, chi2, excess, rms_magnitude_db, rms_phase_deg``;
-    ``chi2`` is the mean squared normalized error (1: within the noise),
-    ``excess = max(chi2 - 1, 0)``.
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        `channel_errors`.
+    bands_hz : sequence, optional
+        Band edges (the last may be ``inf``); default: per channel family, bands
+        derived from the measured grid (`ambid.floor.frequency_bands`), so no band
+        lies outside the data or holds a handful of points.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``output, input, band, points, chi2, excess, rms_magnitude_db, rms_phase_deg``;
+        ``chi2`` is the mean squared normalized error (1: at the floor), ``excess = max(chi2 - 1, 0)``.
     """
-    edges = np.asarray(bands_hz, dtype=float)
-    labels = [f"{lo:g}-{hi:g} Hz" for lo, hi in zip(edges[:-1], edges[1:])]
-    frame = errors.assign(band=pd.cut(errors["frequency_hz"], edges, labels=labels, right=False).astype(str))
+    band = np.empty(len(errors), dtype=object)
+    families = errors["output"].map(channel_family).to_numpy()
+    for family in np.unique(families):
+        rows = families == family
+        frequency = errors["frequency_hz"].to_numpy()[rows]
+        edges = np.asarray(bands_hz, dtype=float) if bands_hz is not None else frequency_bands(frequency)
+        labels = band_labels(edges)
+        index = np.clip(np.searchsorted(edges, frequency, side="right") - 1, 0, len(labels) - 1)
+        band[rows] = np.asarray(labels, dtype=object)[index]
+    frame = errors.assign(band=band)
 
     def row(group, output, input_axis, band):
         chi2 = float(np.mean(group["normalized_error"] ** 2))

@@ -10,6 +10,12 @@ are stored as ``re`` / ``im`` columns in SI units, with the standard deviation
 ``noise_std`` of each coefficient.  `validate_identification_log` checks the
 contract on writing and on reading, so a malformed log fails with the rows at
 fault instead of corrupting an FRF downstream.
+
+An optional column ``level`` (integer, default 0) marks repeated steps: level 0
+is the step as the adaptive stepped sine accepted it; a step measured again at
+a lower excitation amplitude, at the same frequency, has level 1.  Pairs of
+levels measure the amplitude-dependent (nonlinear) error of the FRF
+(`ambid.floor`); every estimate of the FRF itself uses level 0.
 """
 
 import numpy as np
@@ -22,6 +28,7 @@ from .machine import ALL_AXES
 __all__ = [
     "CHANNELS",
     "COLUMNS",
+    "OPTIONAL_COLUMNS",
     "KIND",
     "UNITS",
     "channel_unit",
@@ -53,6 +60,8 @@ COLUMNS = {
     "noise_std": "float",
     "attempts": "int",
 }
+#: Columns a log may carry beyond `COLUMNS`: column name -> kind of dtype.
+OPTIONAL_COLUMNS = {"level": "int"}
 
 _COEFFICIENT_UNIT = "SI (A for U2_* and I_*, m for V2_*)"
 UNITS = {
@@ -63,6 +72,7 @@ UNITS = {
     "noise_std": _COEFFICIENT_UNIT,
     "step": "-",
     "attempts": "-",
+    "level": "-",
 }
 _STEP_KEYS = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts", "coefficients", "noise_std")
 _MAX_GROUPS_QUOTED = 4
@@ -94,14 +104,15 @@ def identification_frame(steps):
         ``attempts`` (int >= 1, amplitude adaptations used), ``coefficients``
         (complex array (20,), Fourier coefficients in `CHANNELS` order [A or m])
         and ``noise_std`` (float array (20,), standard deviation of each
-        coefficient [A or m]).
+        coefficient [A or m]); optionally ``level`` (int, 0 unless the step is a
+        repeat at a lower amplitude).
 
     Returns
     -------
     pandas.DataFrame
         Columns ``excited_axis, step, frequency_hz, amplitude_a, channel, re,
-        im, noise_std, attempts``; one row per (step, channel), ordered by axis
-        (`ALL_AXES` order), step and channel (`CHANNELS` order).
+        im, noise_std, attempts, level``; one row per (step, level, channel),
+        ordered by axis (`ALL_AXES` order), level, step and channel (`CHANNELS` order).
 
     Raises
     ------
@@ -119,12 +130,12 @@ def identification_frame(steps):
         for key in ("coefficients", "noise_std"):
             if np.shape(record[key]) != (n_channels,):
                 raise LogError("identification_frame", f"{where}: {key} has shape {np.shape(record[key])}, expected ({n_channels},)")
-    records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r["step"])))
+    records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r.get("level", 0)), int(r["step"])))
     coefficients = np.array([np.asarray(r["coefficients"], dtype=complex) for r in records]).reshape(-1)
     noise_std = np.array([np.asarray(r["noise_std"], dtype=float) for r in records]).reshape(-1)
 
     def per_step(key, dtype):
-        return np.repeat(np.array([r[key] for r in records], dtype=dtype), n_channels)
+        return np.repeat(np.array([r.get(key, 0) for r in records], dtype=dtype), n_channels)
 
     return pd.DataFrame(
         {
@@ -137,6 +148,7 @@ def identification_frame(steps):
             "im": coefficients.imag.astype(np.float64),
             "noise_std": noise_std,
             "attempts": per_step("attempts", np.int64),
+            "level": per_step("level", np.int64),
         }
     )
 
@@ -161,8 +173,9 @@ def write_identification_log(frame, path, metadata=None):
     """
     validate_identification_log(frame, str(path))
     channel_units = {name: channel_unit(name) for name in CHANNELS}
+    columns = list(COLUMNS) + [name for name in OPTIONAL_COLUMNS if name in frame.columns]
     write_parquet(
-        frame[list(COLUMNS)].reset_index(drop=True),
+        frame[columns].reset_index(drop=True),
         path,
         units=UNITS,
         kind=KIND,
@@ -188,6 +201,8 @@ def read_identification_log(path):
     """
     frame, info = read_parquet(path, kind=KIND)
     validate_identification_log(frame, str(path))
+    if "level" not in frame.columns:
+        frame = frame.assign(level=np.zeros(len(frame), dtype=np.int64))
     return frame, info
 
 
@@ -229,15 +244,17 @@ def _check_columns(frame, source):
     missing = [name for name in COLUMNS if name not in frame.columns]
     if missing:
         raise LogError(source, f"missing column(s) {missing}; an identification log has {list(COLUMNS)}")
-    extra = [name for name in frame.columns if name not in COLUMNS]
+    extra = [name for name in frame.columns if name not in COLUMNS and name not in OPTIONAL_COLUMNS]
     if extra:
-        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)}")
+        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)} "
+                               f"and optionally {list(OPTIONAL_COLUMNS)}")
     required = {
         "str": pd.api.types.is_string_dtype,
         "int": pd.api.types.is_integer_dtype,
         "float": pd.api.types.is_float_dtype,
     }
-    for name, kind in COLUMNS.items():
+    present = {**COLUMNS, **{name: kind for name, kind in OPTIONAL_COLUMNS.items() if name in frame.columns}}
+    for name, kind in present.items():
         if not required[kind](frame[name]):
             raise LogError(source, f"column {name!r} has dtype {frame[name].dtype}, expected {kind}")
         missing_values = frame[name].isna().to_numpy()
@@ -265,9 +282,13 @@ def validate_identification_log(frame, source):
         (zero excitation); an (axis, step) has a duplicate
         or missing channel, or rows disagreeing on frequency, amplitude or
         attempts; or an axis' frequency grid does not strictly increase with step.
+        With a ``level`` column: ``level < 0``, or a repeated step (level > 0)
+        without its level-0 step at the same frequency.
     """
     _check_columns(frame, source)
     frame = frame.reset_index(drop=True)
+    if "level" not in frame.columns:
+        frame = frame.assign(level=np.zeros(len(frame), dtype=np.int64))
     if frame.empty:
         raise LogError(source, "no rows (an identification log holds at least one step)")
     unknown_axis = ~frame["excited_axis"].isin(ALL_AXES).to_numpy()
@@ -287,39 +308,52 @@ def validate_identification_log(frame, source):
     _check_row(frame, frame["amplitude_a"].to_numpy() <= 0, source, "amplitude_a <= 0 (no excitation)")
     _check_row(frame, frame["noise_std"].to_numpy() < 0, source, "noise_std < 0", per_channel=True)
     _check_row(frame, frame["attempts"].to_numpy() < 1, source, "attempts < 1")
+    _check_row(frame, frame["level"].to_numpy() < 0, source, "level < 0 (0: the step, 1, 2, ...: repeats at lower amplitude)")
     excitation = (frame["channel"] == "U2_" + frame["excited_axis"]).to_numpy()
     silent = excitation & (np.hypot(frame["re"].to_numpy(dtype=float), frame["im"].to_numpy(dtype=float)) == 0)
     _check_row(frame, silent, source, "the excited axis' control current U2 is 0 (zero excitation: no FRF point)",
                per_channel=True)
 
-    duplicated = frame.duplicated(["excited_axis", "step", "channel"], keep=False).to_numpy()
-    _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step)", per_channel=True)
+    duplicated = frame.duplicated(["excited_axis", "step", "level", "channel"], keep=False).to_numpy()
+    _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step, level)", per_channel=True)
     # unknown channels and duplicates are already rejected: a complete step has exactly one row per channel
-    grouped = frame.groupby(["excited_axis", "step"], sort=False)
+    grouped = frame.groupby(["excited_axis", "step", "level"], sort=False)
     sizes = grouped.size()
     incomplete = sizes[sizes != len(CHANNELS)]
     if len(incomplete):
-        axis, step = incomplete.index[0]
-        mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
+        axis, step, level = incomplete.index[0]
+        mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
         absent = [name for name in CHANNELS if name not in set(frame.loc[mask, "channel"])]
         raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
     for name in ("frequency_hz", "amplitude_a", "attempts"):
         spread = grouped[name].nunique()
         disagreeing = spread[spread > 1]
         if len(disagreeing):
-            axis, step = disagreeing.index[0]
-            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
+            axis, step, level = disagreeing.index[0]
+            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
             values = frame.loc[mask, name].unique()
             raise LogError(source, f"{_where(frame, mask)}: rows disagree on {name} ({', '.join(map(repr, values.tolist()))})")
 
+    steps_frame = frame.groupby(["excited_axis", "level", "step"])["frequency_hz"].first().reset_index()
+    base = steps_frame[steps_frame["level"] == 0].set_index(["excited_axis", "step"])["frequency_hz"]
+    repeats = steps_frame[steps_frame["level"] > 0]
+    if len(repeats):
+        matched = base.reindex(pd.MultiIndex.from_frame(repeats[["excited_axis", "step"]])).to_numpy()
+        orphan = ~(np.abs(matched / repeats["frequency_hz"].to_numpy() - 1) <= 1e-9)  # NaN (no level-0 step) is orphan too
+        if orphan.any():
+            axis, step, level = repeats.iloc[int(np.flatnonzero(orphan)[0])][["excited_axis", "step", "level"]]
+            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
+            raise LogError(source, f"{_where(frame, mask)}: a repeat (level {level}) needs the level-0 step of the same "
+                                   "axis and step at the same frequency")
+    level0 = (frame["level"] == 0).to_numpy()
     for axis in ALL_AXES:
-        grid = frame[frame["excited_axis"] == axis].groupby("step")["frequency_hz"].first().sort_index()
+        grid = frame[level0 & (frame["excited_axis"] == axis)].groupby("step")["frequency_hz"].first().sort_index()
         steps, frequency_hz = grid.index.to_numpy(), grid.to_numpy()
         bad = np.flatnonzero(np.diff(frequency_hz) <= 0)
         if bad.size:
             k = bad[0]
             pair = (steps[k], steps[k + 1])
-            mask = ((frame["excited_axis"] == axis) & frame["step"].isin(pair)).to_numpy()
+            mask = level0 & ((frame["excited_axis"] == axis) & frame["step"].isin(pair)).to_numpy()
             raise LogError(
                 source,
                 f"{_where(frame, mask)}: frequency grid of {axis} not strictly increasing with step "
@@ -362,7 +396,8 @@ def noise_from_scatter(frame, source="<frame>"):
     """
     frame = frame.sort_values(["excited_axis", "channel", "step"])
     estimates = {}
-    for (axis, name), group in frame.groupby(["excited_axis", "channel"], sort=False):
+    steps = frame if "level" not in frame.columns else frame[frame["level"] == 0]  # repeats are not neighbours
+    for (axis, name), group in steps.groupby(["excited_axis", "channel"], sort=False):
         c = group["re"].to_numpy() + 1j * group["im"].to_numpy()
         if c.size >= 3:
             sigma = np.median(np.abs(c[2:] - 2 * c[1:-1] + c[:-2])) / np.sqrt(6 * np.log(2))

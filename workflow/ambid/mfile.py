@@ -101,6 +101,8 @@ def write_thesis_m(frame, path, header_lines=(), digits=17):
     ``data_exc_<axis> = [`` ... ``];`` with one row per step: frequency [Hz]
     and amplitude [A] as reals, then the 20 channel coefficients as complex
     literals ``re+imi`` in the `THESIS_COLUMNS` layout, positions in µm.
+    Repeated steps (``level`` > 0) are not written: the thesis format holds one
+    row per frequency step.
 
     Raises
     ------
@@ -108,6 +110,8 @@ def write_thesis_m(frame, path, header_lines=(), digits=17):
         If ``frame`` is not a valid identification log; nothing is written then.
     """
     validate_identification_log(frame, str(path))
+    if "level" in frame.columns:  # the thesis format has one row per step: repeats at other amplitudes stay in the Parquet log
+        frame = frame[frame["level"] == 0]
     layout = ", ".join(f"{column} {description}" for column, description in enumerate(THESIS_COLUMNS, start=1))
     lines = [f"% {text}" for header in header_lines for text in str(header).splitlines() or [""]]
     lines.append(f"% columns: {layout}")

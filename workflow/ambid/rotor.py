@@ -525,12 +525,15 @@ class Rotor:
         -------
         PlanarModes
         """
-        planar = self.planar_matrices()
-        n = planar["mass"].shape[0]
-        subset = None if n_modes is None or n_modes >= n else (0, n_modes - 1)
-        eigval, shapes = scipy.linalg.eigh(planar["stiffness"], planar["mass"], subset_by_index=subset)
-        omega = np.sqrt(np.clip(eigval, 0.0, None))
-        return PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
+        key = ("modes", n_modes)
+        if key not in self._cache:  # a rotor is immutable: variants that change only damping or sensors reuse its modes
+            planar = self.planar_matrices()
+            n = planar["mass"].shape[0]
+            subset = None if n_modes is None or n_modes >= n else (0, n_modes - 1)
+            eigval, shapes = scipy.linalg.eigh(planar["stiffness"], planar["mass"], subset_by_index=subset)
+            omega = np.sqrt(np.clip(eigval, 0.0, None))
+            self._cache[key] = PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
+        return self._cache[key]
 
     def modal_loss_factors(self, modes):
         """Strain-energy weighted loss factor of each mode.
