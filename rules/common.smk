@@ -185,9 +185,42 @@ def identification_center(wildcards):
     return {"calibration_log": f"data/{wildcards.machine}/{cal}/calibration.parquet"} if cal else {}
 
 
-def thesis_m_runs():
-    """Runs whose raw log is a user's thesis-style .m file (converted by rule import_thesis_m)."""
-    return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") == "m"]
+#: the user's file in data/<machine>/<run>/ by run format, unless the run names its own (key `file`)
+USER_FILES = {"m": "identification.m", "table": "identification.csv", "mat": "identification.mat", "uff": "frf.uff"}
+
+
+def imported_runs():
+    """Runs whose raw log is a user's file in another format (converted by rule import_log)."""
+    return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") in ("m", "table", "mat")]
+
+
+def user_log_file(wildcards):
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return f"data/{wildcards.machine}/{wildcards.run}/{spec.get('file') or USER_FILES[spec['format']]}"
+
+
+def reader_units(wildcards):
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return {key: spec[key] for key in ("position_unit", "current_unit") if key in spec}
+
+
+def uff_options(wildcards):
+    """Reader options of a run with format uff (empty for the others)."""
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return {key: spec[key] for key in ("estimator", "position_unit", "current_unit") if key in spec and spec["format"] == "uff"}
+
+
+def frf_input(wildcards):
+    """The FRF stage's input: the canonical log, or a run's UFF58 FRFs (format uff)."""
+    if RUNS[(wildcards.machine, wildcards.run)].get("format") == "uff":
+        return {"uff": user_log_file(wildcards)}
+    return {"log": f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"}
+
+
+for (_machine, _run), _spec in RUNS.items():
+    if _spec.get("file") in ("identification.parquet",) and _spec.get("format") != "parquet":
+        raise ConfigError(f"machines.{_machine}.runs.{_run}.file", "identification.parquet is the canonical log the "
+                          "import writes; name your file otherwise (e.g. identification.csv)")
 
 
 def runs_of(kind, source=None):
@@ -216,6 +249,7 @@ MODEL_OUTPUTS = [
 ]
 FRF_OUTPUTS = ["frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
 FIT_OUTPUTS = ["features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
+EXPORT_OUTPUTS = ["frf.csv", "frf.mat", "models.csv", "models.mat"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
 DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]
 LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
@@ -244,7 +278,7 @@ def machine_outputs(machine):
     outputs += [f"results/{machine}/calibration/{run}/{name}" for run in calibration for name in CALIBRATION_OUTPUTS]
     outputs += [f"results/{machine}/calibration/{run}/sensitivity.tsv" for run in calibration if run in rig_runs]
     outputs += [f"results/{machine}/{stage}/{run}/{name}" for run in identification
-                for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS)) for name in names]
+                for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS), ("export", EXPORT_OUTPUTS)) for name in names]
     if config["machines"][machine].get("update"):
         outputs += [f"results/{machine}/update/{run}/{name}" for run in identification for name in UPDATE_OUTPUTS]
     outputs += [f"results/{machine}/model/{variant}/{name}" for variant in variants_of(machine) for name in MODEL_OUTPUTS]

@@ -1,9 +1,10 @@
-# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log.
+# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log
+# (or, for a run with format uff, a user's UFF58 FRFs when no raw log exists).
 
 
 rule frf:
     input:
-        log="data/{machine}/{run}/identification.parquet",
+        unpack(frf_input),
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         uff="results/{machine}/frf/{run}/frf.uff",
@@ -12,6 +13,7 @@ rule frf:
         axial="results/{machine}/frf/{run}/figures/axial.png",
     params:
         dpi=config["figures"]["dpi"],
+        uff_options=uff_options,
         library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/frf_{run}.log",
@@ -23,21 +25,24 @@ rule frf:
         "../workflow/scripts/frf.py"
 
 
-rule import_thesis_m:
-    # a user's thesis-style .m log, parsed by a strict grammar (never evaluated) into the Parquet log
+rule import_log:
+    # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
+    # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
     input:
-        mfile="data/{machine}/{run}/identification.m",
+        raw=user_log_file,
     output:
         log="data/{machine}/{run}/identification.parquet",
     wildcard_constraints:
-        run="|".join(thesis_m_runs()) or "no_thesis_m_runs",
+        run="|".join(imported_runs()) or "no_imported_runs",
     log:
-        "logs/{machine}/import_thesis_m_{run}.log",
+        "logs/{machine}/import_log_{run}.log",
     params:
+        format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
+        units=reader_units,
         library=LIBRARY_DIGEST,
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
     script:
-        "../workflow/scripts/import_thesis_m.py"
+        "../workflow/scripts/import_log.py"

@@ -174,7 +174,7 @@ def test_real_logs_in_thesis_m_format(workdir):
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
     result = snakemake(workdir, "results/demo20/frf/mine01/frf.parquet")
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "rule import_thesis_m" in result.stdout + result.stderr and "acquire_identification" not in result.stdout + result.stderr
+    assert "rule import_log" in result.stdout + result.stderr and "acquire_identification" not in result.stdout + result.stderr
     frame, _ = read_parquet(workdir / "results/demo20/frf/mine01/frf.parquet", kind="frf")
     assert set(frame["estimator"]) == {"siso", "mimo", "current"}
 
@@ -296,3 +296,47 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     assert "**Missing: `element_stiffness[design]`**" in text and "name: element_stiffness" in text
     ledger = pd.read_csv(workdir / "results/demo20/ledger/ledger.tsv", sep="\t").set_index(["variant", "output"])
     assert ledger.loc[("updated", "all"), "excess"] < 0.01 * ledger.loc[("nominal", "all"), "excess"]
+
+
+def test_the_same_log_in_every_format_gives_the_same_frf(workdir):
+    """The shipped example as a thesis .m, a MATLAB .mat and a wide CSV in um: one FRF; its UFF58 export, read back as a
+    run of format uff (no raw log), gives the FRF table again and feeds the fit."""
+    import numpy as np
+    import scipy.io
+    from numpy.testing import assert_allclose
+
+    from ambid.mfile import parse_thesis_m, read_thesis_m
+    from test_readers import wide
+
+    example = workdir / EXAMPLE_LOG
+    for run in ("asmat", "ascsv", "asuff"):
+        (workdir / f"data/demo20/{run}").mkdir(parents=True)
+    scipy.io.savemat(workdir / "data/demo20/asmat/identification.mat", parse_thesis_m(example.read_text()))
+    wide(read_thesis_m(example), position_suffix="_um").to_csv(workdir / "data/demo20/ascsv/mine.csv", index=False)
+
+    def change(config):
+        runs = config["machines"]["demo20"]["runs"]
+        runs["asmat"] = {"kind": "identification", "source": "data", "format": "mat"}
+        runs["ascsv"] = {"kind": "identification", "source": "data", "format": "table", "file": "mine.csv"}
+        runs["asuff"] = {"kind": "identification", "source": "data", "format": "uff"}
+
+    edit_config(workdir, change)
+    targets = [f"results/demo20/frf/{run}/frf.parquet" for run in ("thesis01", "asmat", "ascsv")]
+    result = snakemake(workdir, *targets, "--cores", "2")
+    assert result.returncode == 0, result.stderr[-3000:]
+    tables = [read_parquet(workdir / target, kind="frf")[0] for target in targets]
+    for other in tables[1:]:
+        assert_allclose(other[["re", "im", "std"]], tables[0][["re", "im", "std"]], rtol=1e-12)
+    shutil.copy(workdir / "results/demo20/frf/thesis01/frf.uff", workdir / "data/demo20/asuff/frf.uff")
+    result = snakemake(workdir, "results/demo20/fit/asuff/models.parquet", "results/demo20/export/asuff/frf.mat")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "rule import_log" not in result.stdout + result.stderr  # the FRFs go straight to the FRF stage
+    imported, info = read_parquet(workdir / "results/demo20/frf/asuff/frf.parquet", kind="frf")
+    key = ["estimator", "output", "input", "frequency_hz"]
+    original = tables[0].sort_values(key).reset_index(drop=True)
+    imported = imported.sort_values(key).reset_index(drop=True)
+    assert (original[key[:3]] == imported[key[:3]]).all().all()
+    assert_allclose(imported[["re", "im"]], original[["re", "im"]], rtol=1e-10, atol=1e-12 * np.abs(original["re"]).max())
+    assert info["metadata"]["source_log"] == "data/demo20/asuff/frf.uff"
+    ratio = imported["std"] / original["std"]
+    assert 0.2 < ratio.median() < 5  # the scatter estimate is of the order of the propagated noise
