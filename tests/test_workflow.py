@@ -1,6 +1,7 @@
 """The Snakemake workflow, run as a user would (subprocesses on a copy of the config)."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -220,13 +221,18 @@ def test_library_change_reruns_the_rules(tmp_path):
     assert "rule model" in dry.stdout and "Nothing to be done" not in dry.stdout
 
 
-def test_lint_has_only_the_deliberate_finding():
+def test_lint_and_format_are_clean():
+    """snakemake --lint finds nothing (every rule names the conda environment), snakefmt would change nothing, and every
+    rule prints a message."""
     result = subprocess.run([*SNAKEMAKE, "--lint"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     findings = [line.strip() for line in (result.stdout + result.stderr).splitlines() if line.strip().startswith("* ")]
-    # deliberate, named in the README: no conda/container (the environment is the pinned .venv)
-    assert findings == ["* Specify a conda environment or container for each rule.:"] * len(findings)
-    rules = sum(text.count("\nrule ") for text in (p.read_text() for p in (ROOT / "rules").glob("*.smk")))
-    assert len(findings) <= rules
+    assert result.returncode == 0 and findings == [], (result.stdout + result.stderr)[-3000:]
+    formatted = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "rules"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=300)
+    assert formatted.returncode == 0, formatted.stderr[-3000:]
+    texts = [p.read_text() for p in [ROOT / "Snakefile", *(ROOT / "rules").glob("*.smk")]]
+    rules = sum(len(re.findall(r"^rule \w+:", text, re.M)) for text in texts)
+    assert rules > 15 and sum(len(re.findall(r"^    message:", text, re.M)) for text in texts) == rules
 
 
 def test_fit_and_update_stages_on_a_user_log(workdir):
