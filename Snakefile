@@ -21,6 +21,8 @@ include: "rules/report.smk"
 
 
 rule all:
+    message:
+        "every machine's report"
     input:
         all_outputs(),
     default_target: True

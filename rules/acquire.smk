@@ -6,6 +6,8 @@
 
 rule acquire_identification:
     # centred on the magnetic center its calibration run found (thesis ch. 6), when the run names one
+    message:
+        "{wildcards.machine} {wildcards.run}: stepped-sine identification on the virtual rig (thesis ch. 4.2)"
     input:
         unpack(identification_center),
         unpack(rig_files),
@@ -29,11 +31,15 @@ rule acquire_identification:
     resources:
         mem_mb=2000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/acquire_identification.py"
 
 
 rule acquire_calibration:
+    message:
+        "{wildcards.machine} {wildcards.run}: magnetic center calibration on the virtual rig (thesis ch. 3.3)"
     input:
         unpack(rig_files),
     wildcard_constraints:
@@ -54,6 +60,8 @@ rule acquire_calibration:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/acquire_calibration.py"
 
@@ -61,6 +69,8 @@ rule acquire_calibration:
 rule calibration_sensitivity:
     # a virtual experiment: the method run with wrong g0, b, theta or a current-sensor offset,
     # scored against the rig's truth (which is why it lives with the rig rules)
+    message:
+        "{wildcards.machine} {wildcards.run}: sensitivity of the magnetic center to parameter errors (rig)"
     input:
         unpack(rig_files),
         machine=machine_model_file,
@@ -81,5 +91,7 @@ rule calibration_sensitivity:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/calibration_sensitivity.py"

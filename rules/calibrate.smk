@@ -2,6 +2,8 @@
 
 
 rule calibrate:
+    message:
+        "{wildcards.machine} {wildcards.run}: magnetic center from the calibration log (thesis ch. 3, 6.1)"
     input:
         log="data/{machine}/{run}/calibration.parquet",
         machine=machine_model_file,
@@ -24,5 +26,7 @@ rule calibrate:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/calibrate.py"

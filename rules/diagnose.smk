@@ -3,6 +3,8 @@
 
 
 rule compare:
+    message:
+        "{wildcards.machine} {wildcards.run}: model variant {wildcards.variant} against the measured FRFs"
     input:
         frf="results/{machine}/frf/{run}/frf.parquet",
         machine="results/{machine}/model/{variant}/machine.yaml",
@@ -23,11 +25,15 @@ rule compare:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/compare.py"
 
 
 rule diagnose:
+    message:
+        "{wildcards.machine} {wildcards.run}: which effect model variant {wildcards.variant} is missing"
     input:
         frf="results/{machine}/frf/{run}/frf.parquet",
         machine="results/{machine}/model/{variant}/machine.yaml",
@@ -48,11 +54,15 @@ rule diagnose:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/diagnose.py"
 
 
 rule ledger:
+    message:
+        "{wildcards.machine}: the misfit of every model variant (ledger)"
     input:
         summaries=lambda wildcards: [
             f"results/{wildcards.machine}/compare/{run}/{variant}/summary.tsv"
@@ -76,5 +86,7 @@ rule ledger:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/ledger.py"

@@ -2,6 +2,8 @@
 
 
 rule export:
+    message:
+        "{wildcards.machine} {wildcards.run}: FRFs and fitted models as CSV and .mat"
     input:
         frf="results/{machine}/frf/{run}/frf.parquet",
         models="results/{machine}/fit/{run}/models.parquet",
@@ -18,5 +20,7 @@ rule export:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/export.py"

@@ -2,6 +2,8 @@
 
 
 rule fit:
+    message:
+        "{wildcards.machine} {wildcards.run}: parametric fits, resonances and anti-resonances (thesis ch. 5.1)"
     input:
         frf="results/{machine}/frf/{run}/frf.parquet",
         machine=machine_model_file,
@@ -24,5 +26,7 @@ rule fit:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/fit.py"

@@ -3,6 +3,8 @@
 
 
 rule frf:
+    message:
+        "{wildcards.machine} {wildcards.run}: SISO, MIMO and coil-current FRFs (thesis eq. 4.1)"
     input:
         unpack(frf_input),
     output:
@@ -21,6 +23,8 @@ rule frf:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/frf.py"
 
@@ -28,6 +32,8 @@ rule frf:
 rule import_log:
     # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
     # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
+    message:
+        "{wildcards.machine} {wildcards.run}: {input.raw} converted into the canonical log"
     input:
         raw=user_log_file,
     output:
@@ -44,5 +50,7 @@ rule import_log:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/import_log.py"

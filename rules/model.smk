@@ -3,6 +3,8 @@
 
 rule variant:
     # a variant's machine config: the machine file, the calibrated operating point, added effects, updates
+    message:
+        "{wildcards.machine}: machine file of model variant {wildcards.variant}"
     input:
         unpack(variant_inputs),
     output:
@@ -19,11 +21,15 @@ rule variant:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/variant.py"
 
 
 rule model:
+    message:
+        "{wildcards.machine}: modes, plant FRF and stability of model variant {wildcards.variant}"
     input:
         machine="results/{machine}/model/{variant}/machine.yaml",
     output:
@@ -44,5 +50,7 @@ rule model:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/model.py"

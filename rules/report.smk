@@ -5,6 +5,8 @@ CAPTIONS = {path.stem: path.read_text() for path in sorted(Path(workflow.basedir
 
 
 rule report:
+    message:
+        "{wildcards.machine}: the HTML report"
     input:
         lambda wildcards: machine_outputs(wildcards.machine),
     output:
@@ -24,5 +26,7 @@ rule report:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/report.py"

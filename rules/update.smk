@@ -2,6 +2,8 @@
 
 
 rule update:
+    message:
+        "{wildcards.machine} {wildcards.run}: rotor model update (thesis ch. 5.2)"
     input:
         features="results/{machine}/fit/{run}/features.parquet",
         frf="results/{machine}/frf/{run}/frf.parquet",
@@ -30,5 +32,7 @@ rule update:
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    conda:
+        "../workflow/envs/ambid.yaml"
     script:
         "../workflow/scripts/update.py"
