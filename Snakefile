@@ -21,8 +21,8 @@ include: "rules/report.smk"
 
 
 rule all:
-    message:
-        "every machine's report"
+    default_target: True
     input:
         all_outputs(),
-    default_target: True
+    message:
+        "every machine's report"

@@ -2,8 +2,6 @@
 
 
 rule export:
-    message:
-        "{wildcards.machine} {wildcards.run}: FRFs and fitted models as CSV and .mat"
     input:
         frf="results/{machine}/frf/{run}/frf.parquet",
         models="results/{machine}/fit/{run}/models.parquet",
@@ -12,15 +10,17 @@ rule export:
         frf_mat="results/{machine}/export/{run}/frf.mat",
         models_csv="results/{machine}/export/{run}/models.csv",
         models_mat="results/{machine}/export/{run}/models.mat",
-    params:
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/export_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
-    conda:
-        "../workflow/envs/ambid.yaml"
+    params:
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: FRFs and fitted models as CSV and .mat"
     script:
         "../workflow/scripts/export.py"

@@ -3,8 +3,6 @@
 
 
 rule frf:
-    message:
-        "{wildcards.machine} {wildcards.run}: SISO, MIMO and coil-current FRFs (thesis eq. 4.1)"
     input:
         unpack(frf_input),
     output:
@@ -13,44 +11,46 @@ rule frf:
         radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
-    params:
-        dpi=config["figures"]["dpi"],
-        uff_options=uff_options,
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/frf_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
-    conda:
-        "../workflow/envs/ambid.yaml"
+    params:
+        dpi=config["figures"]["dpi"],
+        uff_options=uff_options,
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: SISO, MIMO and coil-current FRFs (thesis eq. 4.1)"
     script:
         "../workflow/scripts/frf.py"
 
 
 rule import_log:
-    # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
-    # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
-    message:
-        "{wildcards.machine} {wildcards.run}: {input.raw} converted into the canonical log"
     input:
         raw=user_log_file,
     output:
         log="data/{machine}/{run}/identification.parquet",
-    wildcard_constraints:
-        run="|".join(imported_runs()) or "no_imported_runs",
     log:
         "logs/{machine}/import_log_{run}.log",
-    params:
-        format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
-        units=reader_units,
-        library=LIBRARY_DIGEST,
+    wildcard_constraints:
+        run="|".join(imported_runs()) or "no_imported_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
-    conda:
-        "../workflow/envs/ambid.yaml"
+    params:
+        format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
+        units=reader_units,
+        library=LIBRARY_DIGEST,
+    # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
+    # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
+    message:
+        "{wildcards.machine} {wildcards.run}: {input.raw} converted into the canonical log"
     script:
         "../workflow/scripts/import_log.py"
