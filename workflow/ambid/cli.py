@@ -95,8 +95,8 @@ def _top_level_block(lines, key):
     return start, end
 
 
-def _write_checked(path, text, expected, what):
-    """Write ``text`` to ``path`` only if it parses to ``expected``; else raise naming what could not be added."""
+def _check_edit(path, text, expected, what):
+    """Raise naming what could not be added unless ``text`` (an edit of ``path``) parses to ``expected``."""
     try:
         parsed = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -104,6 +104,11 @@ def _write_checked(path, text, expected, what):
     if parsed != expected:
         raise ConfigError(what, "could not be added to the file by a text edit that keeps its comments; add it by hand",
                           source=str(path))
+
+
+def _write_checked(path, text, expected, what):
+    """Write ``text`` to ``path`` only if it parses to ``expected``."""
+    _check_edit(path, text, expected, what)
     with atomic_path(path) as temporary:
         temporary.write_text(text)
 
@@ -166,6 +171,7 @@ def new_machine(name, template="demo20", directory="."):
         start, end = _top_level_block(lines, "machines")
         new_text = "".join(lines[:start + 1]) + _machine_entry(name, source.stem, 2) + "".join(lines[end:])
         expected = {**yaml.safe_load("".join(lines)), "machines": {name: {"model": f"config/machines/{name}.yaml", "runs": {}}}}
+    _check_edit(config_path, new_text, expected, f"machines.{name}")  # before anything is written
     with atomic_path(target) as temporary:
         temporary.write_text(header + commented(text, schema))
     written.append(f"wrote {target} (from {source}, every key commented)")
