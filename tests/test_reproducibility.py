@@ -65,7 +65,7 @@ def test_second_run_does_nothing_and_a_model_change_reruns_only_downstream(two_r
     # the measurements and their FRF do not depend on the model: the rig is planned with its as-built drawing
     assert not {"acquire_calibration", "acquire_identification", "frf"} & set(jobs), jobs
     # everything that reads the machine file, and what follows from it
-    assert set(jobs) == {"calibrate", "calibration_sensitivity", "fit", "update", "variant", "model", "compare",
+    assert set(jobs) == {"calibrate", "calibration_sensitivity", "fit", "export", "update", "variant", "model", "compare",
                          "diagnose", "ledger", "report", "all"}, jobs
 
 

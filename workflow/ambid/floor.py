@@ -157,7 +157,7 @@ def level_pairs(frame):
         ``axis -> (frequency_hz (n,), c0 (n, 20), s0 (n, 20), c1 (n, 20), s1 (n, 20))``,
         coefficients and noise in `ambid.logs.CHANNELS` order; axes without repeats are absent.
     """
-    if "level" not in frame.columns or not (frame["level"] > 0).any():
+    if frame is None or "level" not in frame.columns or not (frame["level"] > 0).any():
         return {}
     index = {name: k for k, name in enumerate(CHANNELS)}
     out = {}
@@ -308,8 +308,8 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
         `ambid.frf.frf_table` of the run's level-0 steps.
     arrays : dict
         `ambid.frf.log_arrays` of the same steps (excitation amplitudes).
-    frame : pandas.DataFrame
-        The identification log (its repeated steps, if any).
+    frame : pandas.DataFrame or None
+        The identification log (its repeated steps, if any); None for FRFs without a log (UFF58).
     settings : FloorSettings
 
     Returns

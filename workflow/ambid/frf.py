@@ -34,6 +34,7 @@ __all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", 
 def log_arrays(frame, level=0):
     """Per excited axis: frequencies (n,), coefficients (n, 20) and their noise (n, 20), steps in order.
 
+    A channel the axis' run does not carry (the other bearing's, `ambid.logs.axis_channels`) is NaN.
     ``level`` selects the steps as accepted (0, the default) or their repeats at a
     lower amplitude (1, ...; see `ambid.logs`); a log without a ``level`` column is all level 0.
     """
@@ -43,8 +44,8 @@ def log_arrays(frame, level=0):
     for axis, group in frame.groupby("excited_axis", sort=False):
         group = group.sort_values(["step", "channel"])
         steps = group["step"].unique()
-        coefficients = np.zeros((steps.size, len(CHANNELS)), dtype=complex)
-        noise = np.zeros((steps.size, len(CHANNELS)))
+        coefficients = np.full((steps.size, len(CHANNELS)), np.nan, dtype=complex)
+        noise = np.full((steps.size, len(CHANNELS)), np.nan)
         row = np.searchsorted(steps, group["step"].to_numpy())
         column = group["channel"].map(index).to_numpy()
         coefficients[row, column] = group["re"].to_numpy() + 1j * group["im"].to_numpy()
@@ -77,13 +78,16 @@ def siso_etfe(arrays):
     dict
         ``(output, input) -> (frequency_hz, G, std)``; G [m/A] = V2_output / U2_input
         of the run exciting ``input``; std from the logged noise,
-        ``|G| sqrt((s_V / |V|)^2 + (s_U / |U|)^2)``.
+        ``|G| sqrt((s_V / |V|)^2 + (s_U / |U|)^2)``.  Outputs the run does not
+        carry (the other bearing's, when the log leaves them out) have no entry.
     """
     out = {}
     for excited, (frequency, coefficients, noise) in arrays.items():
         u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
         for output in ALL_AXES:
             v, sv = coefficients[:, _v2(output)], noise[:, _v2(output)]
+            if np.isnan(v).all():
+                continue
             out[(output, excited)] = (frequency, *_ratio(v, sv, u, su))
     return out
 

@@ -5,9 +5,12 @@ and, for every accepted frequency step, records the Fourier coefficient of
 every channel at the excitation frequency.  The 20 channels are, for each axis
 of `ALL_AXES`, the plant input ``U2_<axis>`` (commanded control current [A]),
 the plant output ``V2_<axis>`` (measured position [m]) and the measured coil
-currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  Complex coefficients
-are stored as ``re`` / ``im`` columns in SI units, with the standard deviation
-``noise_std`` of each coefficient.  `validate_identification_log` checks the
+currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  A step carries at least
+the channels of its own bearing (`axis_channels`: the 16 radial channels when a
+radial axis is excited, the 4 axial ones when Z is), and either all or none of
+the other bearing's, the same on every step of an excited axis.  Complex
+coefficients are stored as ``re`` / ``im`` columns in SI units, with the
+standard deviation ``noise_std`` of each coefficient.  `validate_identification_log` checks the
 contract on writing and on reading, so a malformed log fails with the rows at
 fault instead of corrupting an FRF downstream.
 
@@ -23,10 +26,14 @@ import pandas as pd
 
 from .errors import LogError
 from .io import read_parquet, write_parquet
-from .machine import ALL_AXES
+from .machine import ALL_AXES, RADIAL_AXES
 
 __all__ = [
     "CHANNELS",
+    "RADIAL_CHANNELS",
+    "AXIAL_CHANNELS",
+    "axis_channels",
+    "log_source",
     "COLUMNS",
     "OPTIONAL_COLUMNS",
     "KIND",
@@ -37,6 +44,7 @@ __all__ = [
     "read_identification_log",
     "validate_identification_log",
     "noise_from_scatter",
+    "scatter_std",
 ]
 
 KIND = "identification_log"
@@ -47,6 +55,10 @@ CHANNELS = (
     + tuple(f"V2_{axis}" for axis in ALL_AXES)
     + tuple(name for axis in ALL_AXES for name in (f"I_upper_{axis}", f"I_lower_{axis}"))
 )
+
+#: The channels of the radial bearings (DX, DY, NX, NY) and of the axial bearing (Z), in `CHANNELS` order.
+RADIAL_CHANNELS = tuple(name for name in CHANNELS if not name.endswith("_Z"))
+AXIAL_CHANNELS = tuple(name for name in CHANNELS if name.endswith("_Z"))
 
 #: Column name -> kind of dtype required ("str", "int" or "float").
 COLUMNS = {
@@ -91,6 +103,20 @@ def channel_unit(name):
     return "m" if name.startswith("V2_") else "A"
 
 
+def axis_channels(axis):
+    """The channels every step exciting ``axis`` must carry: its bearing's (`RADIAL_CHANNELS` or `AXIAL_CHANNELS`)."""
+    return RADIAL_CHANNELS if axis in RADIAL_AXES else AXIAL_CHANNELS
+
+
+def log_source(path, info):
+    """The file a user gave for a log: its provenance's ``file`` when it was converted (a ``.m``, a table), else ``path``.
+
+    Errors about a log's content name this file, not the Parquet it was converted to.
+    """
+    original = ((info or {}).get("metadata") or {}).get("provenance", {}).get("file")
+    return f"{original} (converted to {path})" if original and str(original) != str(path) else str(path)
+
+
 def identification_frame(steps):
     """Long-format identification log from a list of step records.
 
@@ -104,22 +130,23 @@ def identification_frame(steps):
         ``attempts`` (int >= 1, amplitude adaptations used), ``coefficients``
         (complex array (20,), Fourier coefficients in `CHANNELS` order [A or m])
         and ``noise_std`` (float array (20,), standard deviation of each
-        coefficient [A or m]); optionally ``level`` (int, 0 unless the step is a
-        repeat at a lower amplitude).
+        coefficient [A or m]); optionally ``channels`` (the names, in any
+        order, of the channels the step carries; the two arrays then hold
+        those channels only) and ``level`` (int, 0 unless the step is a repeat at
+        a lower amplitude).
 
     Returns
     -------
     pandas.DataFrame
         Columns ``excited_axis, step, frequency_hz, amplitude_a, channel, re,
-        im, noise_std, attempts, level``; one row per (step, level, channel),
-        ordered by axis (`ALL_AXES` order), level, step and channel (`CHANNELS` order).
+        im, noise_std, attempts``; one row per (step, channel), ordered by axis
+        (`ALL_AXES` order), step and channel (`CHANNELS` order).
 
     Raises
     ------
     LogError
         If a record lacks a key, names an unknown axis or has arrays of the wrong shape.
     """
-    n_channels = len(CHANNELS)
     for index, record in enumerate(steps):
         where = f"step record {index}"
         missing = [key for key in _STEP_KEYS if key not in record]
@@ -127,15 +154,25 @@ def identification_frame(steps):
             raise LogError("identification_frame", f"{where}: missing key(s) {missing}")
         if record["excited_axis"] not in ALL_AXES:
             raise LogError("identification_frame", f"{where}: unknown axis {record['excited_axis']!r}")
+        n_channels = len(record.get("channels", CHANNELS))
         for key in ("coefficients", "noise_std"):
             if np.shape(record[key]) != (n_channels,):
                 raise LogError("identification_frame", f"{where}: {key} has shape {np.shape(record[key])}, expected ({n_channels},)")
     records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r.get("level", 0)), int(r["step"])))
-    coefficients = np.array([np.asarray(r["coefficients"], dtype=complex) for r in records]).reshape(-1)
-    noise_std = np.array([np.asarray(r["noise_std"], dtype=float) for r in records]).reshape(-1)
+    index = {name: k for k, name in enumerate(CHANNELS)}
+    names, coefficients, noise_std = [], [], []
+    for r in records:  # each step's channels in canonical order
+        channels = list(r.get("channels", CHANNELS))
+        order = np.argsort([index.get(name, len(CHANNELS)) for name in channels], kind="stable")
+        names.append(np.asarray(channels, dtype=object)[order])
+        coefficients.append(np.asarray(r["coefficients"], dtype=complex)[order])
+        noise_std.append(np.asarray(r["noise_std"], dtype=float)[order])
+    counts = np.array([len(n) for n in names], dtype=np.int64)
+    coefficients = np.concatenate(coefficients or [np.zeros(0, complex)])
+    noise_std = np.concatenate(noise_std or [np.zeros(0)])
 
     def per_step(key, dtype):
-        return np.repeat(np.array([r.get(key, 0) for r in records], dtype=dtype), n_channels)
+        return np.repeat(np.array([r.get(key, 0) for r in records], dtype=dtype), counts)
 
     return pd.DataFrame(
         {
@@ -143,7 +180,7 @@ def identification_frame(steps):
             "step": per_step("step", np.int64),
             "frequency_hz": per_step("frequency_hz", np.float64),
             "amplitude_a": per_step("amplitude_a", np.float64),
-            "channel": np.tile(np.array(CHANNELS, dtype=object), len(records)),
+            "channel": np.concatenate(names or [np.zeros(0, dtype=object)]),
             "re": coefficients.real.astype(np.float64),
             "im": coefficients.imag.astype(np.float64),
             "noise_std": noise_std,
@@ -262,6 +299,34 @@ def _check_columns(frame, source):
             raise LogError(source, f"{_ranges(np.flatnonzero(missing_values)[:20])}: missing value in column {name!r}")
 
 
+def _check_channel_sets(frame, sets, source):
+    """Each step: its bearing's channels, all or none of the other's, the same set on every step of its axis."""
+
+    def rows(axis, step):
+        return _where(frame, ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy())
+
+    first_of_axis = {}
+    for (axis, step, *_), channels in sets.items():
+        own = axis_channels(axis)
+        other = AXIAL_CHANNELS if own is RADIAL_CHANNELS else RADIAL_CHANNELS
+        absent = [name for name in own if name not in channels]
+        if absent:
+            bearing = "axial" if own is AXIAL_CHANNELS else "radial"
+            raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(absent)} (a step exciting {axis} "
+                                   f"carries the {len(own)} {bearing} channels; the other bearing's are optional)")
+        partial = [name for name in other if name not in channels]
+        if 0 < len(partial) < len(other):
+            raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(partial)} (the other bearing's "
+                                   f"channels are optional, but all or none of them)")
+        if axis not in first_of_axis:
+            first_of_axis[axis] = (step, channels)
+        elif channels != first_of_axis[axis][1]:
+            first_step, first = first_of_axis[axis]
+            extra = sorted(channels ^ first, key=CHANNELS.index)
+            raise LogError(source, f"{rows(axis, step)}: carries other channels than step {first_step} of {axis} "
+                                   f"(differing: {', '.join(extra)}); every step of an axis carries the same channels")
+
+
 def validate_identification_log(frame, source):
     """Check an identification log against the schema-1 contract.
 
@@ -279,9 +344,11 @@ def validate_identification_log(frame, source):
         wrong dtype; an axis or channel is unknown; a value is not finite;
         ``step < 0``, ``frequency_hz <= 0``, ``amplitude_a <= 0``,
         ``noise_std < 0`` or ``attempts < 1``; the excited axis' ``U2`` is 0
-        (zero excitation); an (axis, step) has a duplicate
-        or missing channel, or rows disagreeing on frequency, amplitude or
-        attempts; or an axis' frequency grid does not strictly increase with step.
+        (zero excitation); an (axis, step) has a duplicate channel, lacks one
+        of its bearing's channels (`axis_channels`), carries part of the other
+        bearing's, or carries other channels than the excited axis' first step;
+        rows of an (axis, step) disagree on frequency, amplitude or attempts;
+        or an axis' frequency grid does not strictly increase with step.
         With a ``level`` column: ``level < 0``, or a repeated step (level > 0)
         without its level-0 step at the same frequency.
     """
@@ -316,15 +383,9 @@ def validate_identification_log(frame, source):
 
     duplicated = frame.duplicated(["excited_axis", "step", "level", "channel"], keep=False).to_numpy()
     _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step, level)", per_channel=True)
-    # unknown channels and duplicates are already rejected: a complete step has exactly one row per channel
+    # unknown channels and duplicates are already rejected: check each step's channel set
     grouped = frame.groupby(["excited_axis", "step", "level"], sort=False)
-    sizes = grouped.size()
-    incomplete = sizes[sizes != len(CHANNELS)]
-    if len(incomplete):
-        axis, step, level = incomplete.index[0]
-        mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
-        absent = [name for name in CHANNELS if name not in set(frame.loc[mask, "channel"])]
-        raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
+    _check_channel_sets(frame, grouped["channel"].agg(frozenset), source)
     for name in ("frequency_hz", "amplitude_a", "attempts"):
         spread = grouped[name].nunique()
         disagreeing = spread[spread > 1]
@@ -369,7 +430,7 @@ def noise_from_scatter(frame, source="<frame>"):
     sensor, the same whatever axis is excited, so it is estimated per channel as
     the smallest, over the excited axes, of the robust second-difference scatter
 
-    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``
+    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``  (`scatter_std`)
 
     of the coefficients ``c`` along the steps (exact for complex white noise,
     where ``|d|^2`` is exponential with mean ``6 sigma^2``; a smooth response
@@ -391,22 +452,58 @@ def noise_from_scatter(frame, source="<frame>"):
     Raises
     ------
     LogError
-        If no excited axis has three steps, or a channel's scatter is 0
-        (a constant or copied channel).
+        If no excited axis has three steps, or a channel's scatter is 0 on
+        every excited axis (a constant or copied channel); an axis on which a
+        channel is constant (zero-padded) is left out of that channel's estimate.
     """
     frame = frame.sort_values(["excited_axis", "channel", "step"])
-    estimates = {}
+    estimates, logged = {}, set()
     steps = frame if "level" not in frame.columns else frame[frame["level"] == 0]  # repeats are not neighbours
     for (axis, name), group in steps.groupby(["excited_axis", "channel"], sort=False):
         c = group["re"].to_numpy() + 1j * group["im"].to_numpy()
         if c.size >= 3:
-            sigma = np.median(np.abs(c[2:] - 2 * c[1:-1] + c[:-2])) / np.sqrt(6 * np.log(2))
-            estimates[name] = min(estimates.get(name, np.inf), sigma)
-    missing = sorted(set(frame["channel"]) - set(estimates))
+            logged.add(name)
+            sigma = scatter_std(c)
+            if sigma > 0:  # a channel constant on one axis' run (zero padding) says nothing about its noise
+                estimates[name] = min(estimates.get(name, np.inf), sigma)
+    missing = sorted(set(frame["channel"]) - logged, key=CHANNELS.index)
     if missing:
         raise LogError(source, f"noise cannot be estimated (fewer than 3 steps on every excited axis): {', '.join(missing)}")
-    silent = sorted(name for name, sigma in estimates.items() if not sigma > 0)
+    silent = sorted(logged - set(estimates), key=CHANNELS.index)
     if silent:
-        raise LogError(source, f"channels {', '.join(silent)} do not scatter at all (constant or copied values)")
+        raise LogError(source, f"channel(s) {', '.join(silent)} do not scatter at all on any excited axis "
+                               f"(constant or copied values)")
     frame = frame.assign(noise_std=frame["channel"].map(estimates).astype(float))
     return frame.sort_index()
+
+
+def scatter_std(values, window=None):
+    """Robust standard deviation of complex white noise on a smooth sequence, from its second differences.
+
+    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``: for complex white
+    noise of standard deviation ``sigma`` (per complex value, ``E|n|^2 = sigma^2``)
+    the second difference has ``E|d|^2 = 6 sigma^2`` and ``|d|^2`` is exponential,
+    whose median is ``ln 2`` times its mean.
+
+    Parameters
+    ----------
+    values : complex array (n,), n >= 3
+    window : int, optional
+        None: one value for the whole sequence.  An odd number of points: a
+        running median of that many second differences, one value per point
+        (the ends take the nearest full window), for noise that changes along
+        the sequence.
+
+    Returns
+    -------
+    float or array (n,)
+    """
+    values = np.asarray(values, dtype=complex)
+    d = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / np.sqrt(6 * np.log(2))
+    if window is None:
+        return float(np.median(d))
+    half = min(window // 2, (d.size - 1) // 2)
+    padded = np.concatenate([np.full(1, d[0]), d, np.full(1, d[-1])])  # one per point: the ends repeat their neighbour
+    starts = np.clip(np.arange(values.size) - half, 0, padded.size - 2 * half - 1)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+    return np.median(windows[starts], axis=1)
