@@ -11,6 +11,7 @@ rule compare:
         summary="results/{machine}/compare/{run}/{variant}/summary.tsv",
         bode="results/{machine}/compare/{run}/{variant}/figures/bode_compare.png",
         error_map="results/{machine}/compare/{run}/{variant}/figures/error_map.png",
+        findings="results/{machine}/compare/{run}/{variant}/findings.tsv",
     log:
         "logs/{machine}/compare_{run}_{variant}.log",
     benchmark:

@@ -23,6 +23,8 @@ The summary per channel and band is ``chi2 = mean(normalized_error^2)``
 magnitude and phase errors.  This is the "compare" step of the diagnosis loop.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
@@ -32,10 +34,11 @@ from .floor import band_labels, frequency_bands
 from .frf import channel
 from .loop import zero_order_hold
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
-from .plant import zoh_discretize
+from .findings import Finding
+from .plant import Plant, zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "channel_family"]
+           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes"]
 
 
 class CompareError(AmbidError):
@@ -152,6 +155,92 @@ def model_channels(plant, frequency_hz, channels):
     response = plant.radial_frequency_response(frequency_hz) * zero_order_hold(frequency_hz,
                                                                                 plant.machine.sample_time_s)[:, None, None]
     return {(o, i): response[:, RADIAL_AXES.index(o), RADIAL_AXES.index(i)] for o, i in channels}
+
+
+def truncation_error(machine, measured, retained_modes, reference):
+    """Largest error of the radial channels with ``retained_modes`` modes against ``reference``, in units of sigma.
+
+    The modal model keeps the lowest ``retained_modes`` free-free modes per plane
+    (thesis eq. 2.10); the modes it drops still bend the response below their
+    frequencies (most near anti-resonances, which are set by every mode).  The
+    error is ``max |G_n - G_ref| / sigma`` over the measured radial points, and
+    the point where it is largest.
+
+    Returns
+    -------
+    error : float
+        In units of the measurement's uncertainty.
+    magnitude_db, phase_deg, frequency_hz : float
+        The model-to-model difference at that point.
+    """
+    radial = {key: value for key, value in measured.items() if key[0] in RADIAL_AXES}
+    if not radial:
+        return 0.0, 0.0, 0.0, 0.0
+    reduced = model_response(Plant(replace(machine, retained_modes=retained_modes)), radial)
+    full = reference if isinstance(reference, dict) else model_response(Plant(replace(machine, retained_modes=reference)), radial)
+    worst = (0.0, 0.0, 0.0, 0.0)
+    for key, (frequency, _, std) in radial.items():
+        difference = np.abs(reduced[key] - full[key]) / std
+        k = int(np.argmax(difference))
+        if difference[k] > worst[0]:
+            ratio = reduced[key][k] / full[key][k] if full[key][k] != 0 else 1.0
+            worst = (float(difference[k]), float(20 * np.log10(abs(ratio))), float(np.degrees(np.angle(ratio))), float(frequency[k]))
+    return worst
+
+
+def enough_modes(machine, measured, tolerance=0.1, most=80):
+    """The retained modes that keep the truncation error below ``tolerance`` times the floor on every measured point.
+
+    Starting from the machine's own ``retained_modes`` and growing by half each
+    time, against a reference of ``most`` modes (or all the rotor has).
+
+    Returns
+    -------
+    modes : int
+        The number to use (the machine's own when it is enough).
+    own_error : tuple
+        `truncation_error` of the machine's own number.
+    error : tuple
+        `truncation_error` of ``modes`` (above ``tolerance`` only when even ``most`` modes are not enough).
+    """
+    available = 2 * machine.rotor.n_nodes
+    most = min(most, available)
+    own = machine.retained_modes
+    if own >= most:
+        return own, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
+    radial = {key: value for key, value in measured.items() if key[0] in RADIAL_AXES}
+    reference = model_response(Plant(replace(machine, retained_modes=most)), radial)
+    own_error = truncation_error(machine, measured, own, reference)
+    modes, error = own, own_error
+    while error[0] > tolerance and modes < most:
+        modes = min(most, int(np.ceil(1.5 * modes)))
+        error = truncation_error(machine, measured, modes, reference) if modes < most else (0.0, 0.0, 0.0, 0.0)
+    return modes, own_error, error
+
+
+def with_enough_modes(machine, measured, stage, tolerance=0.1):
+    """The machine with enough retained modes for this measurement (`enough_modes`), and what the user must know.
+
+    Returns
+    -------
+    machine : ambid.machine.Machine
+    findings : list of ambid.findings.Finding
+        A warning when the machine's own ``rotor.retained_modes`` leaves a
+        truncation error above the tolerance (and the number used instead), or
+        when even the most modes tried do not reach it.
+    """
+    modes, own, error = enough_modes(machine, measured, tolerance)
+    findings = []
+    if modes != machine.retained_modes:
+        findings.append(Finding(stage, "warning", "truncation", "rotor.retained_modes",
+                                f"{machine.retained_modes} retained modes leave a truncation error of {own[0]:.3g} times the "
+                                f"measurement's uncertainty ({own[1]:+.2f} dB, {own[2]:+.2f} deg near {own[3]:.0f} Hz); this "
+                                f"stage used {modes}: set rotor.retained_modes: {modes} in the machine file", own[0]))
+    if error[0] > tolerance:
+        findings.append(Finding(stage, "warning", "truncation", "rotor.retained_modes",
+                                f"even {modes} modes leave a truncation error of {error[0]:.3g} times the uncertainty "
+                                f"({error[1]:+.2f} dB near {error[3]:.0f} Hz)", error[0]))
+    return replace(machine, retained_modes=modes), findings
 
 
 def channel_errors(measured, model):

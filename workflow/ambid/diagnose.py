@@ -52,6 +52,7 @@ import scipy.optimize
 from .compare import channel_family, model_response
 from .effects import EFFECTS
 from .errors import AmbidError, ConfigError, ModelError
+from .machine import ALL_AXES
 from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
@@ -90,7 +91,7 @@ class DiagnoseSettings:
     """
 
     max_evaluations: int = 60
-    sequence_length: int = 4
+    sequence_length: int = 6
     min_share: float = 0.1
     floor_limit: float = 1.5
     determined_std: float = 0.1
@@ -150,7 +151,15 @@ class Candidate:
     fixed: dict = field(default_factory=dict)
 
     def build(self, values):
-        return EFFECTS[self.effect](**self.fixed, **{p.name: v for p, v in zip(self.free, values)})
+        """The effect with the free parameters at ``values`` (per-element ones, `FreeParameter.index`, as tuples)."""
+        parameters = {}
+        for p, v in zip(self.free, values):
+            if p.index is None:
+                parameters[p.name] = v
+            else:
+                parameters.setdefault(p.name, {})[p.index] = v
+        parameters = {k: tuple(v[i] for i in sorted(v)) if isinstance(v, dict) else v for k, v in parameters.items()}
+        return EFFECTS[self.effect](**self.fixed, **parameters)
 
 
 def candidate_space(machine):
@@ -161,7 +170,8 @@ def candidate_space(machine):
     50 Hz - 1 MHz, delays 0.1 us - 1 ms, couplings +-20 %, stiffness factors
     0.05 - 5, added damping ratios 1e-4 - 0.1, speeds 100 - 200 000 rpm,
     sensor shifts up to 60 mm (kept on the rotor) and housing modes 20 Hz -
-    5 kHz of 0.05 - 50 rotor masses.
+    5 kHz of 0.05 - 50 rotor masses, the bearings' force constant and delivered
+    bias current within 0.7 - 1.4 of the drawing's, per axis.
     """
     rotor = machine.rotor
     mass = rotor.mass_kg
@@ -187,6 +197,10 @@ def candidate_space(machine):
         z = machine.bearing(bearing).sensor_position_m
         shifts.append(FreeParameter(key, max(-0.06, -z), min(0.06, rotor.length_m - z), log=False, start=0.0, scan=7))
     candidates.append(Candidate("noncollocation", "noncollocation", tuple(shifts)))
+    # the bearings' ki and kx, axis by axis: small corrections from the drawing, refined from no change
+    candidates.append(Candidate("actuator_coefficients", "actuator_coefficients", tuple(
+        FreeParameter(name, 0.7, 1.4, start=1.0, scan=1, index=k) for name in ("force_constant_scale", "bias_current_scale")
+        for k in range(len(ALL_AXES)))))
     candidates.append(Candidate("foundation_mode", "foundation_mode",
                                 (FreeParameter("frequency_hz", 20.0, 5000.0, scan=32),
                                  FreeParameter("mass_kg", 0.05 * mass, 50 * mass, start=mass, scan=3),
@@ -241,8 +255,8 @@ class _Cells:
         return per_point > np.maximum(limit, 1 + 3 / np.sqrt(self.points))
 
     def excess(self, residual, cells):
-        """Excess over the floor, ``sum n (chi2 - 1)``, in the given cells (boolean mask)."""
-        return float(np.sum((self.points * (self.chi2(residual) - 1.0))[cells]))
+        """Excess over the floor, ``sum n max(chi2 - 1, 0)``, in the given cells (boolean mask)."""
+        return float(np.sum((self.points * np.maximum(self.chi2(residual) - 1.0, 0.0))[cells]))
 
     def frame(self, residual, limit):
         per_point = self.chi2(residual)
@@ -359,8 +373,14 @@ def _local_minima(values, shape):
     return flat[np.argsort(values[flat])]
 
 
-def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2):
-    """Fit one candidate on top of ``base`` effects: robust scan, robust refinement, then ``chi2``."""
+def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2, warm=None):
+    """Fit one candidate on top of ``base`` effects: robust scan, robust refinement, then ``chi2``.
+
+    ``starts``: scan minima refined (a second one only where its robust misfit is
+    within twice the best's).  ``warm``: values of an earlier fit of the same
+    candidate (a later round of the forward selection), refined from there
+    instead of scanning again.
+    """
     free = candidate.free
     lower = np.array([p.to_search(p.lower) for p in free])
     upper = np.array([p.to_search(p.upper) for p in free])
@@ -386,16 +406,17 @@ def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2):
             return np.full(2 * points, 1e6)
         return np.concatenate([r.real, r.imag])
 
-    grids = [p.grid() for p in free]
-    shape = tuple(g.size for g in grids)
-    scan = np.array([float(np.sum(robust(np.array(x)) ** 2)) for x in itertools.product(*grids)])
-    order = _local_minima(scan, shape)[:starts]
     inside = lambda x: np.clip(x, lower + 1e-9 * span, upper - 1e-9 * span)  # noqa: E731
+    if warm is None:
+        grids = [p.grid() for p in free]
+        shape = tuple(g.size for g in grids)
+        scan = np.array([float(np.sum(robust(np.array(x)) ** 2)) for x in itertools.product(*grids)])
+        order = [flat for flat in _local_minima(scan, shape)[:starts] if scan[flat] <= 2 * np.min(scan)]
+        origins = [np.array([g[i] for g, i in zip(grids, np.unravel_index(flat, shape))]) for flat in order]
+    else:
+        origins = [np.array([p.to_search(v) for p, v in zip(free, warm)])]
     best = None
-    for flat in order:
-        x0 = np.array([g[i] for g, i in zip(grids, np.unravel_index(flat, shape))])
-        if not np.all(span > 0):
-            continue
+    for x0 in origins:
         # evaluation budgets count the finite-difference Jacobians too (k + 1 evaluations per iteration)
         rough = scipy.optimize.least_squares(robust, inside(x0), bounds=(lower, upper), x_scale=span / 10, diff_step=1e-4,
                                              method="trf", max_nfev=8, xtol=1e-6, ftol=1e-8)
@@ -415,15 +436,17 @@ def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2):
 
 
 def _covariance(jacobian, chi2, points, k, prior=None):
-    """Covariance in search coordinates: ``0.5 (J^T J + P)^-1`` inflated by the misfit left (chi2 per dof above 1).
+    """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
 
-    Each real component of the residual has variance 1/2 at the floor; ``prior``
-    is the diagonal precision a prior adds (already in the residual's units).
+    Each real component of the residual has variance 1/2 at the floor; the
+    data's information is deflated by the misfit left, ``c = max(1, chi2 /
+    (N - k))``; ``prior`` is the diagonal precision a prior adds (in the
+    residual's units, not deflated).
     """
-    information = jacobian.T @ jacobian
+    information = jacobian.T @ jacobian / max(1.0, chi2 / max(points - k, 1))
     if prior is not None:
         information = information + np.diag(prior)
-    return 0.5 * max(1.0, chi2 / max(points - k, 1)) * np.linalg.pinv(information)
+    return 0.5 * np.linalg.pinv(information)
 
 
 def _standard_deviations(free, x, jacobian, chi2, points):
@@ -523,7 +546,7 @@ def _with_values(effect, parameters, values):
     return type(effect)(**new)
 
 
-def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True):
+def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True, initial=None):
     """Refit the chosen effects and the variant's own effects together.
 
     Parameters
@@ -540,6 +563,9 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
         variant has it; ``determined_std``; ``max_evaluations``.
     refit_variant : bool
         Free the variant's own effects (amplifier bandwidths, the update's moduli, ...).
+    initial : JointFit, optional
+        An earlier refit of the same variant whose values start this one (the
+        prior stays centred on the variant's configured values).
 
     Returns
     -------
@@ -563,6 +589,12 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     span = upper - lower
     x0 = np.clip([p.to_search(v) for p, v in zip(parameters, starts)], lower + 1e-9 * span, upper - 1e-9 * span)
     origins = [origin for _, ps, origin, _ in blocks for _ in ps]
+    begin = x0.copy()
+    if initial is not None and not initial.table.empty:
+        earlier = dict(zip(initial.table["parameter"], initial.table["value"]))
+        labels = [f"{effect_label(e)}.{p.name}" + (f"[{p.index}]" if p.index is not None else "") for e, ps, _, _ in blocks for p in ps]
+        begin = np.clip([p.to_search(earlier[label]) if label in earlier else x for p, label, x in zip(parameters, labels, x0)],
+                        lower + 1e-9 * span, upper - 1e-9 * span)
     prior = np.array([origin == "variant" for origin in origins])
     # the prior's residual (x - x0) / (sqrt(2) w) makes chi2 plus the sum of its squares the negative log posterior
     prior_scale = 1.0 / (np.sqrt(2.0) * settings.prior_width)
@@ -584,7 +616,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             r = np.full(points, 1e3)
         return np.concatenate([r.real, r.imag, prior_scale * (x - x0)[prior]])
 
-    solution = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale=np.minimum(span / 10, 1.0),
+    solution = scipy.optimize.least_squares(residual, begin, bounds=(lower, upper), x_scale=np.minimum(span / 10, 1.0),
                                             diff_step=1e-4, method="trf", max_nfev=3 * settings.max_evaluations,
                                             xtol=1e-8, ftol=1e-10)
     x = solution.x
@@ -619,7 +651,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
 class Diagnosis:
     """Result of `diagnose`.
 
-    ``ranked``: every candidate fitted on the model as it is, missing ones first, by evidence;
+    ``ranked``: every candidate fitted on the model (with its own parameters refitted first when
+    that lowers the misfit: ``base_chi2``), missing ones first, by evidence;
     ``sequence``: the missing effects chosen one after the other; ``joint``: their joint refit
     with the variant's own parameters; ``cells_before`` / ``cells_after``: the misfit per family
     and band of the model as it is and after the joint refit; ``verdict``: ``missing``
@@ -632,6 +665,7 @@ class Diagnosis:
     points: int  # complex points N
     overdispersion: float
     ranked: list
+    base_chi2: float = None  # of the model the candidates were fitted on (its own parameters refitted)
     sequence: list = field(default_factory=list)
     joint: JointFit | None = None
     cells_before: pd.DataFrame = None
@@ -645,6 +679,11 @@ class Diagnosis:
 
     def excess_after(self, fitted):
         return max(fitted.chi2 / self.points - 1.0, 0.0)
+
+    @property
+    def base_excess(self):
+        """Excess of the model the candidates were fitted on."""
+        return max((self.chi2 if self.base_chi2 is None else self.base_chi2) / self.points - 1.0, 0.0)
 
     @property
     def best(self):
@@ -670,7 +709,7 @@ class Diagnosis:
         """One row per candidate, in ranking order."""
         rows = []
         for rank, fitted in enumerate(self.ranked, start=1):
-            removed = 1.0 - self.excess_after(fitted) / self.excess if self.excess > 0 else 0.0
+            removed = 1.0 - self.excess_after(fitted) / self.base_excess if self.base_excess > 0 else 0.0
             rows.append({
                 "rank": rank, "candidate": fitted.candidate.label, "effect": fitted.candidate.effect,
                 "parameters": ", ".join(f"{p.name}={v:.6g}" for p, v in zip(fitted.candidate.free, fitted.values)),
@@ -706,35 +745,42 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     settings = replace(settings or DiagnoseSettings(), **overrides)
     if not measured:
         raise DiagnoseError("no measured channel to diagnose")
-    plant = Plant(machine)
     cells = _Cells(measured)
-    evaluator = _Evaluator(plant, measured, cells)
-    residual = evaluator.residual(())
+    residual = _Evaluator(Plant(machine), measured, cells).residual(())
     chi2 = float(np.vdot(residual, residual).real)
-    candidates = candidates or candidate_space(machine)
     cells_before = cells.frame(residual, settings.floor_limit)
+    above_before = cells_before["above_floor"].to_numpy()
+    # the variant's own parameters first: a misfit they explain is not a missing effect
+    retuned = joint_refit(machine, measured, (), settings, cells) if above_before.any() else None
+    base = retuned.machine if retuned is not None and retuned.chi2 < chi2 else machine
+    evaluator = _Evaluator(Plant(base), measured, cells)
+    current = evaluator.residual(()) if base is not machine else residual
+    candidates = candidates or candidate_space(machine)
     fitted = [_fit(evaluator, c, (), settings.max_evaluations) for c in candidates]
-    overdispersion = _rank(fitted, chi2, residual, evaluator, settings)
+    overdispersion = _rank(fitted, float(np.vdot(current, current).real), current, evaluator, settings)
     diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
-                          cells_before=cells_before)
-    chosen = []
-    ranking = fitted
+                          base_chi2=float(np.vdot(current, current).real), cells_before=cells_before)
+    # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
+    # before, and the next candidates fitted on top of that joint model
+    # (candidates that could not pay for their parameters on the model as it is are not tried again; the others
+    # start from where they ended)
+    chosen, ranking, joint = [], fitted, (retuned if base is not machine else None)
+    useful = {f.candidate.label for f in fitted if f.evidence > 0}
+    latest = {f.candidate.label: f.values for f in fitted}
     while ranking and ranking[0].missing and len(chosen) < settings.sequence_length:
         chosen.append(ranking[0])
-        remaining = [c for c in candidates if c.label not in {f.candidate.label for f in chosen}]
-        if not remaining or len(chosen) >= settings.sequence_length:
+        joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint)
+        remaining = [c for c in candidates if c.label in useful and c.label not in {f.candidate.label for f in chosen}]
+        at_floor = not cells.above(cells.chi2(joint.residual), settings.floor_limit).any()
+        if not remaining or at_floor or len(chosen) >= settings.sequence_length:
             break
-        base = tuple(f.effect for f in chosen)
-        current = evaluator.residual(base)
-        ranking = [_fit(evaluator, c, base, settings.max_evaluations) for c in remaining]
-        _rank(ranking, float(np.vdot(current, current).real), current, evaluator, settings)
+        evaluator = _Evaluator(Plant(joint.machine), measured, cells)
+        ranking = [_fit(evaluator, c, (), settings.max_evaluations, warm=latest[c.label]) for c in remaining]
+        _rank(ranking, joint.chi2, joint.residual, evaluator, settings)
+        latest.update({f.candidate.label: f.values for f in ranking})
     diagnosis.sequence = chosen
-    above_before = cells_before["above_floor"].to_numpy()
-    if chosen or above_before.any():
-        diagnosis.joint = joint_refit(machine, measured, chosen, settings, cells)
-        after = diagnosis.joint.residual
-    else:
-        after = residual
+    diagnosis.joint = joint
+    after = joint.residual if joint is not None else residual
     diagnosis.cells_after = cells.frame(after, settings.floor_limit)
     if diagnosis.joint is not None and not diagnosis.joint.table.empty:
         table = diagnosis.joint.table

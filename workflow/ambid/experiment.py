@@ -11,7 +11,7 @@ import numpy as np
 from .excitation import StepPlan, run_stepped_sine
 from .frf import frf_from_log
 from .logs import identification_frame
-from .machine import RADIAL_AXES, machine_from_config
+from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .plant import Plant
 from .rig import RigModel, rig_from_config
 
@@ -74,7 +74,8 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     stiffness of a random element group between 0.3 and 1.5 times nominal,
     added modal damping up to 0.02, speed up to 40 000 rpm, sensor shifts up to
     40 mm (either direction), a housing mode at 100-600 Hz (damping 0.01-0.05)
-    from 5 kg.  Each strength is drawn log-uniformly between its strong end and
+    from 5 kg, the bearings' force constants and bias currents off by up to 10 %
+    (each axis its own share of the drawn error).  Each strength is drawn log-uniformly between its strong end and
     the weak end where `effect_signature` falls to ``target`` times the floor,
     so the draws include effects barely above what the data resolve.
 
@@ -92,12 +93,13 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     def effect(name, parameters):
         return effect_from_config({"name": name, "parameters": parameters}, name, machine)
 
-    def draw(name, key, strong, weak, fixed=None, transform=lambda v: v):
+    def draw(name, key, strong, weak, fixed=None, transform=lambda v: v, build=None):
+        """Parameters with ``key`` drawn between ``strong`` and the weak end (``transform=None``: the strength itself)."""
         fixed = fixed or {}
-        build = lambda v: effect(name, {**fixed, key: transform(v)})  # noqa: E731
+        build = build or (lambda v: effect(name, {**fixed, key: transform(v)}))
         end = _weak_end(machine, build, strong, weak, target)
         value = float(np.exp(rng.uniform(*sorted((np.log(strong), np.log(end))))))
-        return {**fixed, key: transform(value)}
+        return value if transform is None else {**fixed, key: transform(value)}
 
     sign = lambda: float(rng.choice([-1.0, 1.0]))  # noqa: E731
     stiffer = rng.random() < 0.3
@@ -119,6 +121,12 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
         "foundation_mode": draw("foundation_mode", "mass_kg", 5.0, 1e5,
                                 {"frequency_hz": float(rng.uniform(100, 600)), "damping_ratio": float(rng.uniform(0.01, 0.05))}),
     }
+    spread = rng.uniform(-1.0, 1.0, size=(2, len(ALL_AXES)))  # each axis' force-constant and bias errors, relative
+    actuator = draw("actuator_coefficients", "error", 0.1, 1e-7, transform=None,
+                    build=lambda e: effect("actuator_coefficients", {"force_constant_scale": tuple(1 + e * spread[0]),
+                                                                     "bias_current_scale": tuple(1 + e * spread[1])}))
+    draws["actuator_coefficients"] = {"force_constant_scale": tuple(float(v) for v in 1 + actuator * spread[0]),
+                                      "bias_current_scale": tuple(float(v) for v in 1 + actuator * spread[1])}
     draws["noncollocation"]["nde_offset_m"] = shift_sign[1] * abs(draws["noncollocation"]["de_offset_m"]) * float(rng.uniform(0.5, 1.5))
     draws["signature"] = {name: effect_signature(machine, [effect(name, parameters)]) for name, parameters in draws.items()}
     return draws

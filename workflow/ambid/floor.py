@@ -24,14 +24,21 @@ data support:
     ``d = G_0 / G_1 - 1 = kappa (A_0^2 - A_1^2)`` gives ``kappa`` of each channel
     per pair (``A = |U2|``, the excitation amplitude); the noise-debiased rms of the
     nearest pairs' ``kappa`` times ``A^2 |G|`` at each step is its systematic error.
-``smooth_fit``
-    The residual of a local quadratic fit of the FRF (the local polynomial
-    method) beyond what the noise explains: step-to-step systematic scatter.
 ``fallback``
     A documented constant relative floor (config ``frf.fallback_floor``) where
     the data cannot tell: the smooth part of the amplitude-dependent error is
-    invisible without a second level.  ``smooth_fit`` replaces it where it is
-    larger.
+    invisible without a second level.
+``smooth_fit``
+    The residual of a local quadratic fit of the FRF (the local polynomial
+    method) beyond what the noise explains, per channel and band (the median:
+    a resonance too sharp for the local fit is a few points of a band):
+    step-to-step systematic scatter; it replaces the constant at the points
+    where it is larger.
+
+The same residual, where it is *smaller* than the logged noise propagated to
+the FRF, replaces that noise: the closed loop correlates the noise of U2 with
+that of the outputs, which the first-order propagation of independent noise
+overstates (most on the coil currents, whose noise is mostly U2's).
 
 Every FRF row gets a ``systematic_std``; `floor_table` says which method applied
 where, and the report shows it.
@@ -70,7 +77,7 @@ class FloorSettings:
     smooth_half_width : int
         Local-polynomial window: this many steps either side.
     scatter_half_width : int
-        Steps either side over which the scatter's ratio to the logged noise is taken (its median).
+        Steps either side over which the scatter's ratio to the logged noise is averaged.
     """
 
     fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
@@ -272,15 +279,13 @@ def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
     return ratio
 
 
-def _running_median(values, half_width):
-    """Median of the finite values within ``half_width`` points either side of each point (NaN where there are none)."""
-    out = np.full(values.size, np.nan)
-    for k in range(values.size):
-        window = values[max(k - half_width, 0):k + half_width + 1]
-        window = window[np.isfinite(window)]
-        if window.size:
-            out[k] = np.median(window)
-    return out
+def _running_mean(values, half_width):
+    """Mean of the finite values within ``half_width`` points either side of each point (NaN where there are none)."""
+    finite = np.isfinite(values)
+    kernel = np.ones(2 * half_width + 1)
+    total = np.convolve(np.where(finite, values, 0.0), kernel, mode="same")
+    count = np.convolve(finite.astype(float), kernel, mode="same")
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
 def _excitation_amplitude(table, arrays):
@@ -318,7 +323,7 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
         A copy with ``systematic_std`` set on every row.
     floors : pandas.DataFrame
         One row per family and band: ``family, band, band_lo_hz, band_hi_hz, points, method, pairs,
-        smooth_ratio, relative_median, relative_p90`` (of ``systematic_std / |G|``).
+        smooth_fit_points, noise_scale, relative_median, relative_p90`` (of ``systematic_std / |G|``).
 
     Notes
     -----
@@ -349,42 +354,49 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
 
     # noise that the scatter between neighbouring steps shows to be smaller than the propagated logged noise (the
     # closed loop correlates the noise of U2 with that of V2 and of the coil currents): scaled down to the scatter,
-    # point by point from the median over the neighbouring steps
-    noise_scale = np.ones(len(table))
-    for _, channel in table.groupby(["estimator", "output", "input"], sort=False):
-        order = channel.sort_values("frequency_hz").index.to_numpy()
-        local = _running_median(smooth[order], settings.scatter_half_width) / np.log(2)
-        noise_scale[order] = np.sqrt(np.clip(np.where(np.isfinite(local), local, 1.0), 1e-4, 1.0))
-    table["std"] = table["std"].to_numpy() * noise_scale
-    smooth = smooth / noise_scale**2
-    relative_noise = table["std"].to_numpy() / np.maximum(magnitude, 1e-300)
+    # point by point from the mean over the neighbouring steps (a mean, as chi2 is: rare large errors count)
     frequency = table["frequency_hz"].to_numpy()
     edges = {family: frequency_bands(frequency[families == family], settings.min_band_points) for family in set(families)}
+    band_index = np.zeros(len(table), dtype=int)
+    for family, family_edges in edges.items():
+        rows = families == family
+        band_index[rows] = np.clip(np.searchsorted(family_edges, frequency[rows], side="right") - 1, 0, len(family_edges) - 2)
+    noise_scale = np.ones(len(table))
+    excess = np.zeros(len(table))  # the step-to-step scatter's variance beyond the noise, in units of the noise's
+    for _, channel in table.groupby(["estimator", "output", "input"], sort=False):
+        order = channel.sort_values("frequency_hz").index.to_numpy()
+        local = _running_mean(smooth[order], settings.scatter_half_width)
+        noise_scale[order] = np.sqrt(np.clip(np.where(np.isfinite(local), local, 1.0), 1e-4, 1.0))
+        for b in np.unique(band_index[order]):
+            points = order[band_index[order] == b]
+            ratios = smooth[points][np.isfinite(smooth[points])]
+            if ratios.size >= 10:  # the median: a resonance the local fit cannot follow is a few points of the band
+                ratio = np.median(ratios) / np.log(2)
+                if ratio > 1 + 3 * 1.44 / np.sqrt(ratios.size):
+                    excess[points] = ratio - 1.0
+    noise = table["std"].to_numpy()
+    table["std"] = noise * noise_scale
+    # the smooth-fit method: step-to-step systematic scatter, sqrt(scatter - noise), per channel and band
+    smooth_systematic = noise * np.sqrt(excess)
     rows = []
     for family in [f for f in FAMILIES + ("other",) if f in edges]:
         labels = band_labels(edges[family])
-        band_index = np.clip(np.searchsorted(edges[family], frequency, side="right") - 1, 0, len(labels) - 1)
+        fallback = settings.fallback("axial" if family == "other" else family)
         for b, label in enumerate(labels):
             inside = (families == family) & (band_index == b)
             if not inside.any():
                 continue
-            ratios = smooth[inside][np.isfinite(smooth[inside])]
-            ratio = float(np.median(ratios) / np.log(2)) if ratios.size else np.nan
-            # excess scatter over the noise, relative to |G|, where it is detected (3 standard errors of the median)
-            detected = ratios.size >= settings.min_band_points and ratio > 1 + 3 * 1.44 / np.sqrt(ratios.size)
-            smooth_relative = np.sqrt((ratio - 1) * np.median(relative_noise[inside] ** 2)) if detected else 0.0
             unknown = inside & ~np.isfinite(systematic)
-            if unknown.any():
-                fallback = settings.fallback("axial" if family == "other" else family)
-                systematic[unknown] = max(smooth_relative, fallback) * magnitude[unknown]
+            from_scatter = unknown & (smooth_systematic > fallback * magnitude)
+            systematic[unknown] = np.maximum(smooth_systematic[unknown], fallback * magnitude[unknown])
             if family == "other":
                 continue
-            methods = (["two_level"] if (inside & (pairs > 0)).any() else []) + (
-                [("smooth_fit" if smooth_relative > settings.fallback(family) else "fallback")] if unknown.any() else [])
+            methods = (["two_level"] if (inside & (pairs > 0)).any() else []) + (["fallback"] if unknown.any() else []) + (
+                ["smooth_fit"] if from_scatter.any() else [])
             relative = systematic[inside] / np.maximum(magnitude[inside], 1e-300)
             rows.append({"family": family, "band": label, "band_lo_hz": edges[family][b], "band_hi_hz": edges[family][b + 1],
                          "points": int(inside.sum()), "method": " + ".join(methods), "pairs": int(pairs[inside].max()),
-                         "smooth_ratio": ratio, "noise_scale": float(np.median(noise_scale[inside])),
+                         "smooth_fit_points": int(from_scatter.sum()), "noise_scale": float(np.median(noise_scale[inside])),
                          "relative_median": float(np.median(relative)),
                          "relative_p90": float(np.quantile(relative, 0.9))})
     table["systematic_std"] = systematic

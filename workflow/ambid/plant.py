@@ -101,19 +101,27 @@ class Plant:
     ----------
     machine : ambid.machine.Machine
 
+    static_correction : bool
+        Append to the retained modes the static deflection of the dropped ones
+        under the actuator forces (`ambid.rotor.Rotor.planar_modes`); False keeps
+        the plain truncation (as `ambid.modal_features` does).
+
     Notes
     -----
     Structure effects are applied first (they change the machine), then the
     modal model is built with ``machine.retained_modes`` planar modes.
     """
 
-    def __init__(self, machine):
+    def __init__(self, machine, static_correction=True):
         structure, self.input_effects, self.output_effects = split_effects(machine.effects)
         for effect in structure:
             machine = effect.apply(machine)
         self.machine = machine
         self.rotor = machine.rotor
-        self.modes = self.rotor.planar_modes(machine.retained_modes)
+        self.static_correction = static_correction
+        # the lowest modes plus the static correction of the dropped ones under the actuator forces
+        loads = tuple(b.actuator_position_m for b in machine.radial_bearings) if static_correction else ()
+        self.modes = self.rotor.planar_modes(machine.retained_modes, loads)
         self.radial = self._radial_model()
         self._responses = {}  # structural responses by frequency grid, shared with `with_signal_effects` copies
 
@@ -139,7 +147,7 @@ class Plant:
         if effect.location != "structure":
             raise ModelError(f"{effect.name} is not a structure effect: use with_signal_effects")
         applied = replace(self.machine, effects=(effect, *self.input_effects, *self.output_effects))
-        plant = Plant(applied)
+        plant = Plant(applied, static_correction=self.static_correction)
         plant.machine = replace(plant.machine, effects=self.machine.effects + (effect,))
         return plant
 

@@ -199,6 +199,7 @@ class RigModel:
         plant = Plant(machine)
         self.plant = plant
         _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
+        machine = plant.machine  # with the structure effects applied (the actuators' parameters among them)
         nominal = [*machine.radial_electromagnets, machine.axial_electromagnet]
         self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
         self.true_bias_a = self.nominal_bias_a * (1 + imp.bias_current_error)

@@ -37,11 +37,13 @@ findings = []
 for row in floors.itertuples():
     log.info("floor %s %s: %s, systematic %.3g %% median (p90 %.3g %%), noise scaled by %.3g", row.family, row.band, row.method,
              100 * row.relative_median, 100 * row.relative_p90, row.noise_scale)
-    if "fallback" in row.method or "smooth_fit" in row.method:
-        what = "the smooth-fit excess" if "smooth_fit" in row.method else "the documented constant (config frf.fallback_floor)"
+    if "fallback" in row.method:
+        also = (f", or the step-to-step scatter beyond the noise where larger ({row.smooth_fit_points} points)"
+                if "smooth_fit" in row.method else "")
         findings.append(Finding("frf", "note", "floor_fallback", f"{row.family} {row.band}",
-                                f"no repeated steps here: the systematic floor is {what}, "
-                                f"{100 * row.relative_median:.3g} % of |G|", row.relative_median))
+                                f"no repeated steps here: the systematic floor is the documented constant "
+                                f"(config frf.fallback_floor){also}; median {100 * row.relative_median:.3g} % of |G|",
+                                row.relative_median))
     if row.noise_scale < 1:
         findings.append(Finding("frf", "note", "noise_rescaled", f"{row.family} {row.band}",
                                 f"the scatter between neighbouring steps is {row.noise_scale:.2g} times the logged noise "
