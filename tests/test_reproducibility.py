@@ -78,7 +78,7 @@ def test_the_report_covers_every_stage_with_thesis_references(two_runs):
         assert reference in page, reference
     figures = page.count('src="data:image/png;base64,')
     assert figures >= 20 and "http" not in page.split("<body>", 1)[1]  # embedded, nothing fetched
-    assert "Missing: <code>" in page or "Nothing significant" in page  # the diagnoses, rendered
+    assert "<strong>Missing" in page or "Nothing is missing at the floor" in page or "Unexplained misfit" in page  # rendered
 
 
 def test_markdown_is_escaped():

@@ -298,9 +298,11 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     result = snakemake(workdir, "results/demo20/diagnose/user01/nominal/diagnosis.md", "results/demo20/ledger/ledger.tsv")
     assert result.returncode == 0, result.stderr[-3000:]
     candidates = pd.read_csv(workdir / "results/demo20/diagnose/user01/nominal/candidates.tsv", sep="\t")
-    assert candidates.loc[0, "candidate"] == "element_stiffness[design]" and bool(candidates.loc[0, "significant"])
+    assert candidates.loc[0, "candidate"] == "element_stiffness[design]" and bool(candidates.loc[0, "missing"])
     text = (workdir / "results/demo20/diagnose/user01/nominal/diagnosis.md").read_text()
-    assert "**Missing: `element_stiffness[design]`**" in text and "name: element_stiffness" in text
+    assert "Missing" in text and "`element_stiffness[design]`" in text and "name: element_stiffness" in text
+    verdict = pd.read_csv(workdir / "results/demo20/diagnose/user01/nominal/verdict.tsv", sep="\t").iloc[0]
+    assert verdict["verdict"] == "missing" and verdict["effects"].startswith("element_stiffness[design]")
     ledger = pd.read_csv(workdir / "results/demo20/ledger/ledger.tsv", sep="\t").set_index(["variant", "output"])
     assert ledger.loc[("updated", "all"), "excess"] < 0.01 * ledger.loc[("nominal", "all"), "excess"]
 
