@@ -294,7 +294,15 @@ FIT_OUTPUTS = [
 ]
 EXPORT_OUTPUTS = ["frf.csv", "frf.mat", "models.csv", "models.mat"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "findings.tsv", "figures/bode_compare.png", "figures/error_map.png"]
-DIAGNOSE_OUTPUTS = ["candidates.tsv", "joint.tsv", "cells.tsv", "findings.tsv", "verdict.tsv", "diagnosis.md", "figures/fingerprint.png"]
+DIAGNOSE_OUTPUTS = [
+    "candidates.tsv",
+    "joint.tsv",
+    "cells.tsv",
+    "findings.tsv",
+    "verdict.tsv",
+    "diagnosis.md",
+    "figures/fingerprint.png",
+]
 LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
 
 

@@ -265,8 +265,10 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
             coefficients[CHANNELS.index(f"U2_{axis}")] = 1.0
             for out, values in response.items():
                 coefficients[CHANNELS.index(f"V2_{out}")] = values[k] * (1 + 1e-4 * rng.standard_normal())
-            coefficients[CHANNELS.index(f"I_upper_{axis}")] = 1.5  # coil current (upper - lower) / 2 = U2: no amplifier lag
-            coefficients[CHANNELS.index(f"I_lower_{axis}")] = -0.5
+            # coil current (upper - lower) / 2: an ideal amplifier, sampled at the start of the cycle (one cycle behind U2)
+            cycle_behind = np.exp(-2j * np.pi * f * nominal.sample_time_s)
+            coefficients[CHANNELS.index(f"I_upper_{axis}")] = 0.5 + cycle_behind
+            coefficients[CHANNELS.index(f"I_lower_{axis}")] = 0.5 - cycle_behind
             noise = np.abs(coefficients) * 1e-4 + 1e-12
             steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 1.0, "attempts": 1,
                           "coefficients": coefficients, "noise_std": noise})

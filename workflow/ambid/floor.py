@@ -282,10 +282,13 @@ def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
 def _running_mean(values, half_width):
     """Mean of the finite values within ``half_width`` points either side of each point (NaN where there are none)."""
     finite = np.isfinite(values)
-    kernel = np.ones(2 * half_width + 1)
-    total = np.convolve(np.where(finite, values, 0.0), kernel, mode="same")
-    count = np.convolve(finite.astype(float), kernel, mode="same")
-    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    total = np.concatenate([[0.0], np.cumsum(np.where(finite, values, 0.0))])
+    count = np.concatenate([[0], np.cumsum(finite)])
+    index = np.arange(len(values))
+    low = np.clip(index - half_width, 0, len(values))
+    high = np.clip(index + half_width + 1, 0, len(values))
+    window_count = count[high] - count[low]
+    return np.where(window_count > 0, (total[high] - total[low]) / np.maximum(window_count, 1), np.nan)
 
 
 def _excitation_amplitude(table, arrays):
