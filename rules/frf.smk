@@ -1,26 +1,35 @@
-# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log.
+# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log
+# (or, for a run with format uff, a user's UFF58 FRFs when no raw log exists).
 
 
 rule frf:
     input:
-        log="data/{machine}/{run}/identification.parquet",
-    wildcard_constraints:
-        run="|".join(run for _, run in identification_runs("stepped_sine")) or "no_stepped_sine_runs",
+        unpack(frf_input),
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
+        floor="results/{machine}/frf/{run}/floor.tsv",
+        findings="results/{machine}/frf/{run}/findings.tsv",
         uff="results/{machine}/frf/{run}/frf.uff",
         radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
-    params:
-        dpi=config["figures"]["dpi"],
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/frf_{run}.log",
+    wildcard_constraints:
+        run="|".join(run for _, run in identification_runs("stepped_sine")) or "no_stepped_sine_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        floor=config["frf"],
+        dpi=config["figures"]["dpi"],
+        uff_options=uff_options,
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: SISO, MIMO and coil-current FRFs (thesis eq. 4.1) and their floor"
     script:
         "../workflow/scripts/frf.py"
 
@@ -29,8 +38,6 @@ rule bla:
     # a multisine run: best linear approximation with its noise and nonlinear distortion (Pintelon & Schoukens)
     input:
         log="data/{machine}/{run}/multisine.parquet",
-    wildcard_constraints:
-        run="|".join(run for _, run in identification_runs("multisine")) or "no_multisine_runs",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         uff="results/{machine}/frf/{run}/frf.uff",
@@ -38,15 +45,21 @@ rule bla:
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
         distortion_figure="results/{machine}/frf/{run}/figures/distortion.png",
-    params:
-        dpi=config["figures"]["dpi"],
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/bla_{run}.log",
+    wildcard_constraints:
+        run="|".join(run for _, run in identification_runs("multisine")) or "no_multisine_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: best linear approximation of the multisine run, its noise and distortion"
     script:
         "../workflow/scripts/bla.py"
 
@@ -54,40 +67,55 @@ rule bla:
 rule identification_methods:
     # the machine's identification runs side by side: machine time, noise and systematic floors (report section)
     input:
-        frf=lambda wildcards: [f"results/{wildcards.machine}/frf/{run}/frf.parquet" for run in runs_of_machine(wildcards.machine)],
-        logs=lambda wildcards: [identification_log(wildcards.machine, run) for run in runs_of_machine(wildcards.machine)],
+        frf=lambda wildcards: [
+            f"results/{wildcards.machine}/frf/{run}/frf.parquet" for run in runs_of_machine(wildcards.machine)
+        ],
+        logs=lambda wildcards: [
+            identification_log(wildcards.machine, run) for run in runs_of_machine(wildcards.machine)
+        ],
     output:
         table="results/{machine}/methods/comparison.tsv",
         figure="results/{machine}/methods/figures/methods.png",
-    params:
-        runs=lambda wildcards: runs_of_machine(wildcards.machine),
-        dpi=config["figures"]["dpi"],
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/identification_methods.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        runs=lambda wildcards: runs_of_machine(wildcards.machine),
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine}: the identification runs side by side (machine time, noise and systematic floors)"
     script:
         "../workflow/scripts/identification_methods.py"
 
 
-rule import_thesis_m:
-    # a user's thesis-style .m log, parsed by a strict grammar (never evaluated) into the Parquet log
+rule import_log:
     input:
-        mfile="data/{machine}/{run}/identification.m",
+        raw=user_log_file,
     output:
         log="data/{machine}/{run}/identification.parquet",
-    wildcard_constraints:
-        run="|".join(thesis_m_runs()) or "no_thesis_m_runs",
     log:
-        "logs/{machine}/import_thesis_m_{run}.log",
-    params:
-        library=LIBRARY_DIGEST,
+        "logs/{machine}/import_log_{run}.log",
+    wildcard_constraints:
+        run="|".join(imported_runs()) or "no_imported_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
+        units=reader_units,
+        library=LIBRARY_DIGEST,
+    # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
+    # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
+    message:
+        "{wildcards.machine} {wildcards.run}: {input.raw} converted into the canonical log"
     script:
-        "../workflow/scripts/import_thesis_m.py"
+        "../workflow/scripts/import_log.py"

@@ -141,3 +141,34 @@ def test_negative_element_length_fails_before_any_job(workdir):
     text = result.stdout + result.stderr
     assert result.returncode != 0 and "config/machines/demo20.yaml: rotor.elements[0].length_m: -0.02" in text
     assert_nothing_written(workdir, "results")
+
+
+def test_plain_parquet_is_refused_naming_the_keys_and_the_way_in(workdir):
+    """A log with the documented columns written by pandas.to_parquet, as format parquet (the canonical log)."""
+    identification_frame(steps()).to_parquet(user_run(workdir) / "identification.parquet")
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.parquet")
+    assert "ambid.schema_version, ambid.kind and ambid.units" in message and "--format table" in message
+
+
+def test_constant_channel_of_an_m_file_names_the_m_file_and_that_channel_only(workdir):
+    """The noise estimate of a .m log (no noise in the format) fails on a stuck channel: the message names the user's .m
+    and the one stuck channel, not the Parquet it was converted to nor the channels a bearing's run leaves out."""
+    records = steps()
+    for record in records:  # each bearing's channels only, written in the 18 + 6 column layout
+        own = [c for c in CHANNELS if c.endswith("_Z") == (record["excited_axis"] == "Z")]
+        record["coefficients"] = np.array([record["coefficients"][CHANNELS.index(c)] for c in own]) * (1 + 0.01 * record["step"] ** 2)
+        record["coefficients"][own.index(f"U2_{record['excited_axis']}")] = 0.5 + 0.01 * record["step"] ** 2
+        if "I_upper_NX" in own:
+            record["coefficients"][own.index("I_upper_NX")] = 0.1  # stuck
+        record["noise_std"], record["channels"] = np.zeros(len(own)), own
+    write_thesis_m(identification_frame(records), user_run(workdir, "m") / "identification.m")
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.m")
+    assert "channel(s) I_upper_NX do not scatter" in message and "I_lower_NX" not in message
+    assert_nothing_written(workdir, "results/demo20/frf/bad01")
+
+
+def test_unreadable_mat_file(workdir):
+    (user_run(workdir, "mat") / "identification.mat").write_bytes(b"\x00" * 200)
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.mat")
+    assert "not a readable MATLAB .mat file" in message
+    assert_nothing_written(workdir, "data/demo20/bad01/identification.parquet", "results/demo20/frf/bad01")

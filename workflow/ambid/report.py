@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from .errors import AmbidError
+from .findings import findings_frame, read_findings
 from .io import read_tsv
 
 __all__ = ["Figure", "Table", "Text", "Section", "markdown_html", "render_report", "machine_report"]
@@ -208,6 +209,13 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     def table(path, text=""):
         return Table(read_tsv(root / path), text, f"results/{machine}/{path}")
 
+    def findings(path, text):
+        """A stage's findings (`ambid.findings`) as a table, or nothing when it has none."""
+        found = findings_frame(read_findings(root / path)) if (root / path).exists() else None
+        if found is None or found.empty:
+            return []
+        return [Table(found.drop(columns=["value"]), text, f"results/{machine}/{path}")]
+
     sections = []
     summary = Section("Summary")
     sections.append(summary)
@@ -242,9 +250,22 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                    table(f"{base}/distortion.tsv", "Output at the excited, odd-detection and even-detection lines of "
                                                    "the coarse pass (rms per line [m]) and their ratios [dB].")]))
         else:
+            floors = read_tsv(root / base / "floor.tsv")
+            summary.blocks.append(Text(
+                f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides by): "
+                + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
+                            for family, part in floors.groupby("family", sort=False)) + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
                 Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
-                for name in ("radial_siso", "radial_mimo", "axial")]))
+                for name in ("radial_siso", "radial_mimo", "axial")] + [
+                table(f"{base}/floor.tsv",
+                      "The FRF's systematic floor per channel family and band and how it was measured: `two_level` "
+                      "from steps repeated at a lower amplitude (the force law's amplitude-dependent error), "
+                      "`smooth_fit` from the scatter between neighbouring steps beyond the noise, `fallback` the "
+                      "documented constant (config `frf.fallback_floor`) where the data cannot tell; "
+                      "`relative_median` / `relative_p90` of systematic_std / |G|, `noise_scale` where the scatter "
+                      "shows the logged noise overstated.")]
+                + findings(f"{base}/findings.tsv", "What the FRF stage found.")))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
@@ -301,7 +322,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
             sections.append(Section(f"{variant} against {run}", [
                 Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
                 Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
+                *findings(f"{compare}/findings.tsv", "What the comparison found."),
                 Text(caption("diagnosis", run=run, variant=variant)),
+                *findings(f"{diagnose}/findings.tsv", "What the diagnosis found: effects missing, parameters the data "
+                                                      "move, at a bound or undetermined, misfit no effect explains."),
                 Text(diagnosis),
                 Figure(root / diagnose / "figures/fingerprint.png",
                        caption("diagnose_fingerprint", run=run, variant=variant))], level=3))

@@ -34,6 +34,7 @@ from .effects import COIL_CURRENT_EFFECTS, effect_from_config, series_state_spac
 from .errors import ConfigError, ModelError
 from .machine import ALL_AXES, machine_from_config
 from .plant import Plant, zoh_discretize
+from .rig_effects import apply_controller_effects, rig_effect_from_config
 
 __all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]
 
@@ -98,13 +99,18 @@ def _per_axis(mapping, path, default=0.0, width=None):
 def rig_from_config(rig_config, machine_config, source=None):
     """Build a `Rig` from its YAML mapping and the nominal machine's.
 
-    ``truth.effects`` are added to the nominal machine's own effects.
+    ``truth.effects`` are added to the nominal machine's own effects;
+    ``truth.unmodelled`` are effects outside the model's library
+    (`ambid.rig_effects`): the controller ones change the rig's controllers,
+    the others join its signal chains.
     """
     try:
         truth = rig_config.get("truth") or {}
         machine = machine_from_config(machine_config, name=rig_config.get("machine"))
         hidden = [effect_from_config(spec, f"truth.effects[{i}]", machine) for i, spec in enumerate(truth.get("effects") or ())]
-        machine = machine.with_effects(list(machine.effects) + hidden)
+        unmodelled = [rig_effect_from_config(spec, f"truth.unmodelled[{i}]") for i, spec in enumerate(truth.get("unmodelled") or ())]
+        machine, unmodelled = apply_controller_effects(machine, unmodelled)
+        machine = machine.with_effects(list(machine.effects) + hidden + unmodelled)
         imperfections = RigImperfections(
             magnetic_center_offset_m=_per_axis(truth.get("magnetic_center_offset_m"), "truth.magnetic_center_offset_m"),
             gravity_m_s2=float(truth.get("gravity_m_s2", 9.81)),
@@ -127,9 +133,11 @@ def rig_from_config(rig_config, machine_config, source=None):
 
 
 # ----------------------------------------------------------------- state space
-def _diagonal_chains(effects, kinds):
-    """Block-diagonal MIMO system of per-axis SISO chains over ALL_AXES."""
-    blocks = [series_state_space([e.siso_state_space() for e in effects if e.name in kinds and e.acts_on(axis)]) for axis in ALL_AXES]
+def _diagonal_chains(effects, kinds, chain):
+    """Block-diagonal MIMO system of per-axis SISO chains over ALL_AXES: library effects named in ``kinds``
+    and rig-only effects (`ambid.rig_effects`) of rig chain ``chain``."""
+    chained = [e for e in effects if e.name in kinds or getattr(e, "rig_chain", None) == chain]
+    blocks = [series_state_space([e.siso_state_space() for e in chained if e.acts_on(axis)]) for axis in ALL_AXES]
     a = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
     b = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
     c = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
@@ -138,9 +146,11 @@ def _diagonal_chains(effects, kinds):
 
 
 def _coupling(effects, side):
+    """Static matrix of the couplings (and, on the output side, the sensor gains) on ALL_AXES."""
     matrix = np.eye(N_AXES)
     for effect in effects:
-        if effect.name == "cross_coupling" and effect.side == side:
+        if (effect.name == "cross_coupling" and effect.side == side) or (
+                side == "output" and getattr(effect, "rig_chain", None) == "output_matrix"):
             matrix = effect.matrix(ALL_AXES) @ matrix
     return matrix
 
@@ -151,7 +161,9 @@ class SimulationState:
 
     ``setpoint_m`` and ``bias_a`` (5, B) are what the PLC commands per member: the
     position set points and the bias currents (the amplifiers deliver them with
-    the rig's bias error).
+    the rig's bias error).  ``held_a`` (5, B) is the control current commanded in
+    the cycle before, which the amplifiers hold when the PLC samples the coil
+    currents at the start of a cycle (with the positions, before its new output).
     """
 
     plant: np.ndarray  # (n_states, B)
@@ -160,11 +172,12 @@ class SimulationState:
     step: int
     setpoint_m: np.ndarray  # (5, B)
     bias_a: np.ndarray  # (5, B) commanded bias currents
+    held_a: np.ndarray  # (5, B) control currents of the cycle before
 
     def take(self, members):
         """Keep only the given batch members (compaction of finished ones)."""
         return SimulationState(self.plant[:, members], self.controller[:, members], self.sensor_buffer[:, :, members],
-                               self.step, self.setpoint_m[:, members], self.bias_a[:, members])
+                               self.step, self.setpoint_m[:, members], self.bias_a[:, members], self.held_a[:, members])
 
 
 class RigModel:
@@ -186,6 +199,7 @@ class RigModel:
         plant = Plant(machine)
         self.plant = plant
         _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
+        machine = plant.machine  # with the structure effects applied (the actuators' parameters among them)
         nominal = [*machine.radial_electromagnets, machine.axial_electromagnet]
         self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
         self.true_bias_a = self.nominal_bias_a * (1 + imp.bias_current_error)
@@ -209,9 +223,9 @@ class RigModel:
         self.gravity = np.concatenate([plant.gravity_force(imp.gravity_m_s2), [0.0]])
 
         # effects in the time domain
-        self.input_chain = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS))
-        self.force_chain = _diagonal_chains(input_effects, {"eddy_current"})
-        self.sensor_chain = _diagonal_chains(output_effects, {"sensor_lowpass"})
+        self.input_chain = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS), "coil")
+        self.force_chain = _diagonal_chains(input_effects, {"eddy_current"}, "force")
+        self.sensor_chain = _diagonal_chains(output_effects, {"sensor_lowpass"}, "sensor")
         self.input_coupling = _coupling(input_effects, "input")
         self.output_coupling = _coupling(output_effects, "output")
         delay_s = np.array([sum(e.delay_s for e in output_effects if e.name == "delay" and e.acts_on(a)) for a in ALL_AXES])
@@ -409,6 +423,7 @@ class RigModel:
             0,
             np.repeat(self.setpoint_m[:, None], batch, axis=1),
             np.repeat(self.nominal_bias_a[:, None], batch, axis=1),
+            np.repeat(inputs[:N_AXES, None], batch, axis=1),
         )
 
     def residual_force(self, force_current, position, bias_a=None):
@@ -481,7 +496,10 @@ class RigModel:
         command = self.ctrl_c @ state.controller + self.ctrl_d @ error + excitation_a
         state.controller = self.ctrl_a @ state.controller + self.ctrl_b @ error
         outputs = self.state_outputs @ x
-        coil = outputs[:N_AXES] + self.coil_input @ command
+        # the coil currents are sampled at the start of the cycle, with the positions: the amplifiers still hold the
+        # command of the cycle before (an ideal amplifier's current is one cycle behind U2, as a fast one's is)
+        coil = outputs[:N_AXES] + self.coil_input @ state.held_a
+        state.held_a = command
         inputs = np.empty((self.input_matrix.shape[1], batch))
         inputs[:N_AXES] = command
         inputs[2 * N_AXES] = 1.0
