@@ -31,8 +31,8 @@ continuous plant's poles), which only a benchmark may read:
    demo20's 4 moduli and >= 10 of hs_eden_like's 14 determined, moduli within
    2 % where determined.
 
-Usage: ``.venv/bin/python benchmarks/bench_multisine.py [demo20_seeds] [hs_seeds] [stepped_demo20_seeds]``
-(defaults 10, 3, 2; about 20 minutes on one core).
+Usage: ``.venv/bin/python benchmarks/bench_multisine.py [demo20_seeds] [hs_seeds] [stepped_demo20_seeds] [machines]``
+(defaults 10, 3, 2, ``hs_eden_like,demo20``; about 20 minutes on one free core).
 """
 
 import sys
@@ -237,10 +237,13 @@ def machine_benchmark(machine, seeds, stepped_seeds):
 def main():
     seeds = [int(v) for v in sys.argv[1:4]] + [10, 3, 2][len(sys.argv[1:4]):]
     demo_seeds, hs_seeds, stepped_seeds = seeds
+    machines = sys.argv[4].split(",") if len(sys.argv) > 4 else ["hs_eden_like", "demo20"]
     print("bench_multisine: stepped sine (thesis settings of config/config.yaml) and multisine (config multisine:) "
           "on the default rigs at their magnetic center")
-    machine_benchmark("hs_eden_like", hs_seeds, 1)
-    machine_benchmark("demo20", demo_seeds, stepped_seeds)
+    if "hs_eden_like" in machines:
+        machine_benchmark("hs_eden_like", hs_seeds, 1)
+    if "demo20" in machines:
+        machine_benchmark("demo20", demo_seeds, stepped_seeds)
 
 
 if __name__ == "__main__":
