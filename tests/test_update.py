@@ -7,6 +7,7 @@ import pytest
 from ambid.effects import effect_from_config
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
+from ambid.errors import ConfigError
 from ambid.update import (UpdateError, UpdateSettings, comparison_rows, identifiability, measured_features,
                           nelder_mead_update, reference_features, update_channels, update_model, update_problem,
                           updated_machine_config)
@@ -118,7 +119,7 @@ def test_bad_input_gives_update_errors(demo_machine):
                                   "frequency_std_hz", "damping_std"])
     with pytest.raises(UpdateError, match="no lightly damped"):
         measured_features(empty, SAME_PLANE, 1)
-    with pytest.raises(UpdateError, match="optimizer"):
+    with pytest.raises(ConfigError, match="update.optimizer"):
         UpdateSettings.from_config({"optimizer": "simplex"})
     with pytest.raises(Exception, match="update.bogus"):
         UpdateSettings.from_config({"bogus": 1})

@@ -31,14 +31,14 @@ import numpy as np
 import scipy.optimize
 import scipy.signal
 
-from .errors import AmbidError
+from .errors import AmbidError, ConfigError
 from .fit import classify_poles, sanathanan_koerner, stabilization
 from .loop import zero_order_hold
 from .machine import RADIAL_AXES
 from .plant import RIGID_MODES, damping_ratio
 
 __all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "select_modes", "known_response", "rigid_pole_hz",
-           "select_channels", "feature_rows", "model_rows", "model_from_row"]
+           "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes"]
 
 
 class FitError(AmbidError):
@@ -491,8 +491,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
     x = 1j * f / np.max(f)
     reduced = g / h
     reduced_sigma = sigma / np.abs(h)
-    base = 2 * n_rigid
-    orders = list(range(base + 2, base + 13, 2)) if orders is None else list(orders)
+    orders = fit_orders(orders, n_rigid)
     diagram = stabilization(f, reduced, orders, std=reduced_sigma)
     dropped = []
     # the stated noise must explain what even the highest-order linear fit leaves; where it does
@@ -652,6 +651,28 @@ def _features(model, solution, layout, omega, cost, band_hz):
 
 # -------------------------------------------------------- a whole FRF table
 CHANNEL_SETS = ("diagonal", "same_plane", "all")
+
+
+def fit_orders(orders=None, n_rigid=RIGID_MODES):
+    """Denominator orders of the stabilization diagram: ``orders``, or ``2 n_rigid + 2, ..., 2 n_rigid + 12``."""
+    base = 2 * n_rigid
+    return list(range(base + 2, base + 13, 2)) if orders is None else list(orders)
+
+
+def max_fit_modes(settings):
+    """Most flexible modes the ``fit:`` settings can give a channel (the modes they fix, or half the highest order).
+
+    Raises
+    ------
+    ConfigError
+        ``fit.modes`` more than the stabilization diagram's highest order can hold, before any data is read.
+    """
+    highest = max(fit_orders(settings.get("orders")))
+    modes = settings.get("modes")
+    if modes is not None and modes > highest // 2:
+        raise ConfigError("fit.modes", f"{modes} flexible modes need a denominator order >= {2 * modes}; the stabilization "
+                                       f"diagram's highest order is {highest} (fit.orders), {highest // 2} modes at most")
+    return highest // 2 if modes is None else modes
 
 
 def select_channels(kind, axes=RADIAL_AXES):

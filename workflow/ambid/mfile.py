@@ -14,7 +14,7 @@ identification log.
 """
 
 import math
-from pathlib import Path
+import os
 from string import ascii_letters
 from typing import NamedTuple
 
@@ -536,10 +536,38 @@ def parse_thesis_m(text, path="<string>"):
     return {name: matrix.values for name, matrix in _parse(text, str(path)).items()}
 
 
+#: Longest line accepted [bytes]: a thesis row of 22 complex columns at 17 digits is about 1,100 characters.
+MAX_LINE_BYTES = 65536
+#: Largest file accepted [bytes] (about 200,000 steps of the thesis layout).
+MAX_FILE_BYTES = 256 * 2**20
+
+
 def _read_text(path):
-    """UTF-8 text of ``path`` (a leading byte-order mark is dropped)."""
+    """UTF-8 text of ``path`` (a leading byte-order mark is dropped), refusing oversized files and lines.
+
+    The size is checked before reading and each line's length while reading in chunks, so an
+    oversized file is refused after reading at most `MAX_LINE_BYTES` past its last line end.
+    """
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as handle:
+            size = os.fstat(handle.fileno()).st_size
+            if size > MAX_FILE_BYTES:
+                raise LogError(str(path), f"{size} bytes: larger than the {MAX_FILE_BYTES} a thesis .m log may have")
+            chunks, line, length = [], 1, 0  # length: bytes of the current line read so far
+            while chunk := handle.read(MAX_LINE_BYTES):
+                chunks.append(chunk)
+                start = 0
+                while True:
+                    end = chunk.find(b"\n", start)
+                    length += (end if end >= 0 else len(chunk)) - start
+                    if length > MAX_LINE_BYTES:
+                        raise MFileParseError(str(path), line, MAX_LINE_BYTES + 1,
+                                              f"line longer than {MAX_LINE_BYTES} bytes: a thesis .m log holds one "
+                                              "frequency step per line (rows end with ';' or a line break)")
+                    if end < 0:
+                        break
+                    line, length, start = line + 1, 0, end + 1
+            data = b"".join(chunks)
     except OSError as error:
         raise LogError(str(path), f"cannot read the file ({error.strerror or error})") from None
     try:
