@@ -11,7 +11,7 @@ from ambid.calibration import calibration_settings_from_config
 from ambid.channel_fit import max_fit_modes
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
-from ambid.io import read_yaml
+from ambid.io import file_digest, read_yaml
 from ambid.machine import machine_from_config
 from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
@@ -203,6 +203,17 @@ def identification_center(wildcards):
     return {"calibration_log": f"data/{wildcards.machine}/{cal}/calibration.parquet"} if cal else {}
 
 
+def log_source(wildcards):
+    """A user's log of a run and its content digest (a param, so that a changed log reruns what depends on it
+    whatever its modification time: cp -p, rsync -a, tar); empty for logs the workflow acquires."""
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    if spec["source"] != "data":
+        return {}
+    name = "identification" if spec["kind"] == "identification" else "calibration"
+    path = f"data/{wildcards.machine}/{wildcards.run}/{name}.{'m' if spec.get('format') == 'm' else 'parquet'}"
+    return {"file": path, "digest": file_digest(path)}
+
+
 def thesis_m_runs():
     """Runs whose raw log is a user's thesis-style .m file (converted by rule import_thesis_m)."""
     return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") == "m"]
@@ -232,7 +243,7 @@ MODEL_OUTPUTS = [
     "figures/axial_bode.png",
     "figures/mode_shapes.png",
 ]
-FRF_OUTPUTS = ["frf.parquet", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
+FRF_OUTPUTS = ["frf.parquet", "findings.tsv", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
 FIT_OUTPUTS = ["features.parquet", "features.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
 DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]

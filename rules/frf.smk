@@ -2,15 +2,21 @@
 
 
 rule frf:
+    # the log is checked against the nominal model first (ambid.plausibility): axes, units, outlier steps
     input:
         log="data/{machine}/{run}/identification.parquet",
+        machine=machine_model_file,
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
+        findings="results/{machine}/frf/{run}/findings.tsv",
         uff="results/{machine}/frf/{run}/frf.uff",
         radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
     params:
+        machine_config=machine_config,
+        settings=config["frf"],
+        source=log_source,
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
     log:
@@ -34,6 +40,7 @@ rule import_thesis_m:
     log:
         "logs/{machine}/import_thesis_m_{run}.log",
     params:
+        source=log_source,
         library=LIBRARY_DIGEST,
     threads: 1
     resources:

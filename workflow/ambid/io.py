@@ -9,6 +9,7 @@ never leaves a half-written result.
 """
 
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -29,6 +30,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "rule_log",
     "atomic_path",
+    "file_digest",
     "write_parquet",
     "read_parquet",
     "write_tsv",
@@ -59,6 +61,22 @@ def atomic_path(path):
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def file_digest(path):
+    """SHA-256 of a file's content (16 hex digits), or ``"missing"``.
+
+    What the workflow tracks a user's file by (a rule param: Snakemake reruns what depends on it when the
+    content changes, whatever its modification time), and what a converted log records of its source.
+    """
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as handle:
+            while block := handle.read(2**20):
+                digest.update(block)
+    except OSError:
+        return "missing"
+    return digest.hexdigest()[:16]
 
 
 def read_tsv(path):

@@ -187,6 +187,7 @@ def read_identification_log(path):
         If its content breaks the contract.
     """
     frame, info = read_parquet(path, kind=KIND)
+    frame = _plain_columns(frame)
     validate_identification_log(frame, str(path))
     return frame, info
 
@@ -223,6 +224,14 @@ def _check_row(frame, mask, source, what, per_channel=False):
         first = int(np.flatnonzero(mask)[0])
         note = f" (first: channel {frame['channel'].iat[first]})" if per_channel else ""
         raise LogError(source, f"{_where(frame, mask)}: {what}{note}")
+
+
+def _plain_columns(frame):
+    """Categorical columns (pandas' or Parquet's dictionary encoding of a log from another writer) as their values."""
+    categorical = [name for name in frame.columns if isinstance(frame[name].dtype, pd.CategoricalDtype)]
+    if not categorical:
+        return frame
+    return frame.assign(**{name: frame[name].astype(frame[name].cat.categories.dtype) for name in categorical})
 
 
 def _check_columns(frame, source):
@@ -266,6 +275,7 @@ def validate_identification_log(frame, source):
         or missing channel, or rows disagreeing on frequency, amplitude or
         attempts; or an axis' frequency grid does not strictly increase with step.
     """
+    frame = _plain_columns(frame)
     _check_columns(frame, source)
     frame = frame.reset_index(drop=True)
     if frame.empty:

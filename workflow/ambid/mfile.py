@@ -652,17 +652,23 @@ def read_thesis_m(path):
     index within the axis' matrix (a log with gaps in its steps comes back
     renumbered), ``attempts`` is 1 and ``noise_std`` is 0.0 — the format has no
     noise estimate, and 0.0 (not NaN, which the log contract refuses) marks it
-    absent.  An empty matrix ``[]`` means no steps for that axis.
+    absent.  An empty matrix ``[]`` means no steps for that axis.  ``frame.attrs["source_lines"]``
+    holds, per excited axis, the line of each step (a list of each element's line for a row
+    continued over lines), so that later checks can name the line of a value.
     """
     path = str(path)
-    records = []
+    records, lines = [], {}
     for name, matrix in _parse(_read_text(path), path).items():
         if matrix.values.size == 0:
             continue
         _check_thesis_matrix(name, matrix, path)
         records += _step_records(_VARIABLES[name], matrix.values)
+        # the line of each step (of each element, for a row continued over lines), for messages downstream
+        lines[_VARIABLES[name]] = [row[0][0] if len({line for line, _ in row}) == 1 else [line for line, _ in row]
+                                   for row in matrix.positions]
     if not records:
         raise LogError(path, "no data: the file assigns no non-empty data_exc_* matrix")
     frame = identification_frame(records)
     validate_identification_log(frame, path)
+    frame.attrs["source_lines"] = lines
     return frame

@@ -1,24 +1,43 @@
-"""Rule `frf`: SISO and MIMO ETFE of one identification run -> FRF Parquet and Bode plots."""
+"""Rule `frf`: one identification run, checked against the nominal model -> SISO and MIMO ETFE, findings, Bode plots."""
 
 import numpy as np
 
+from ambid.errors import LogError
+from ambid.findings import write_findings
 from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
 from ambid.io import rule_log, write_parquet
 from ambid.logs import noise_from_scatter, read_identification_log
-from ambid.machine import RADIAL_AXES
+from ambid.machine import RADIAL_AXES, machine_from_config
+from ambid.plant import Plant
+from ambid.plausibility import check_log
 from ambid.plots import bode_measured, save_figure
 from ambid.uff import write_uff58
 
 log = rule_log(snakemake.log[0], "frf")
 
 frame, info = read_identification_log(snakemake.input.log)
+metadata = info["metadata"]
+source = snakemake.params.source
+if source.get("file", "").endswith(".m") and metadata.get("original_sha256") != source["digest"]:
+    # a converted log left from another .m (Snakemake lost track of it): never let it stand for this one
+    raise LogError(snakemake.input.log, f"is not the conversion of {source['file']} as it is now (content digest "
+                                        f"{source['digest']}; converted from {metadata.get('original', 'unknown')}, digest "
+                                        f"{metadata.get('original_sha256', 'unknown')}): delete it and Snakemake converts "
+                                        "the .m again")
 if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
     frame = noise_from_scatter(frame, snakemake.input.log)
     log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
              ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
+settings = snakemake.params.settings
+nominal = Plant(machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine,
+                                    source=snakemake.input.machine))
+frame, findings = check_log(frame, log_arrays(frame), nominal, settings, snakemake.input.log,
+                            metadata.get("source_lines"), metadata.get("original"), snakemake.input.machine)
+for finding in findings:
+    log.warning("%s", finding.message)
 arrays = log_arrays(frame)
 siso = siso_etfe(arrays)
-mimo = mimo_etfe(arrays, source=snakemake.input.log) if all(a in arrays for a in RADIAL_AXES) else None
+mimo = mimo_etfe(arrays, source=snakemake.input.log) if settings["estimator"] == "mimo" else None
 table = frf_table(siso, mimo, current=current_etfe(arrays))
 if mimo is not None:
     condition = mimo[3]
@@ -42,4 +61,5 @@ save_figure(bode_measured([(f"{a} ({estimator.upper()})", *channel(table, estima
             snakemake.output.radial_mimo, dpi)
 save_figure(bode_measured([("Z (SISO)", *channel(table, "siso", "Z", "Z"))] if "Z" in arrays else [], f"{title}: axial"),
             snakemake.output.axial, dpi)
-log.info("FRF written: %d rows", len(table))
+write_findings(findings, snakemake.output.findings)
+log.info("FRF written: %d rows, %d finding(s)", len(table), len(findings))
