@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from .errors import AmbidError
+from .findings import findings_frame, read_findings
 from .io import read_tsv
 
 __all__ = ["Figure", "Table", "Text", "Section", "markdown_html", "render_report", "machine_report"]
@@ -173,6 +174,17 @@ class _Captions:
             raise AmbidError(f"caption template {name!r} cannot be filled: {error!r}") from None
 
 
+def _findings(root, path, machine, what):
+    """The findings a stage wrote next to a result (`ambid.findings`), as a block where the result is quoted."""
+    if not (root / path).exists():
+        return Text(f"No findings table for {what}.")
+    frame = findings_frame(read_findings(root / path))
+    if frame.empty:
+        return Text(f"Findings of {what}: none.")
+    return Table(frame.drop(columns=["stage"]), f"Findings of {what}: **{len(frame)}** (most severe first; a "
+                 "`failure` must not be used as it is).", f"results/{machine}/{path}")
+
+
 def _first_paragraph(markdown):
     """The headline of a diagnosis: its first paragraph after the title."""
     blocks = [b for b in markdown.split("\n\n") if b.strip() and not b.startswith("#")]
@@ -228,12 +240,15 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     for run in identification_runs:
         base = f"frf/{run}"
         sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
+            _findings(root, f"{base}/findings.tsv", machine, f"the log of run `{run}` (plausibility before the FRF)")] + [
             Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
             for name in ("radial_siso", "radial_mimo", "axial")]))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
         sections.append(Section(f"Parametric fit {run} (thesis ch. 5.1)", [
+            _findings(root, f"fit/{run}/findings.tsv", machine, f"the fit of run `{run}` (flagged features stay out of "
+                      "the model update)"),
             Table(features.drop(columns=["estimator"]), "Resonances (poles) and anti-resonances (zeros) of every fitted "
                   "channel with their standard uncertainties (the measured columns of thesis Table 6.4 / 5.2).",
                   f"results/{machine}/fit/{run}/features.tsv"),

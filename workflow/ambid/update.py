@@ -128,6 +128,8 @@ def measured_features(frame, channels, modes):
     """
     wanted = set(channels)
     rows = frame[(frame["estimator"] == "output_error") & frame["kind"].isin(["resonance", "anti_resonance"])]
+    if "flag" in rows:  # failed fits, negative delays, overdamped "resonances" (ambid.channel_fit.fit_verdict)
+        rows = rows[rows["flag"].fillna("") == ""]
     rows = rows[np.array([(o, i) in wanted for o, i in zip(rows["output"], rows["input"])], dtype=bool)]
     rows = rows[(rows["damping_ratio"] > 0) & (rows["damping_ratio"] < LIGHT_DAMPING)]
     # renumber the lightly damped ones per channel and root, lowest first (the fit numbers every resonance)
@@ -139,7 +141,8 @@ def measured_features(frame, channels, modes):
     columns = ["output", "input", "root", "number", "frequency_hz", "damping_ratio", "frequency_std_hz", "damping_std",
                "modal_constant"]
     if rows.empty:
-        raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)}")
+        raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)} "
+                          "(flagged fits left out: see the fit's findings.tsv)")
     return rows[columns].reset_index(drop=True)
 
 
