@@ -243,7 +243,7 @@ MODEL_OUTPUTS = [
     "figures/axial_bode.png",
     "figures/mode_shapes.png",
 ]
-FRF_OUTPUTS = ["frf.parquet", "findings.tsv", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
+FRF_OUTPUTS = ["plausibility.tsv", "frf.parquet", "findings.tsv", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
 FIT_OUTPUTS = ["features.parquet", "features.tsv", "findings.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
 COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
 DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]

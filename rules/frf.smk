@@ -1,11 +1,34 @@
 # Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log.
 
 
-rule frf:
-    # the log is checked against the nominal model first (ambid.plausibility): axes, units, outlier steps
+rule plausibility:
+    # the log against the nominal model, before the FRF (ambid.plausibility.check_units): frequencies, compliance and
+    # coil currents within 30x of the model, or one error naming the likely unit
     input:
         log="data/{machine}/{run}/identification.parquet",
         machine=machine_model_file,
+    output:
+        table="results/{machine}/frf/{run}/plausibility.tsv",
+    params:
+        machine_config=machine_config,
+        source=log_source,
+        library=LIBRARY_DIGEST,
+    log:
+        "logs/{machine}/plausibility_{run}.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
+    script:
+        "../workflow/scripts/plausibility.py"
+
+
+rule frf:
+    # the log's model-free checks first (ambid.plausibility.check_log: radial runs, outlier cells); the check against
+    # the model must have passed, but a model change does not re-run the FRF (ancient)
+    input:
+        log="data/{machine}/{run}/identification.parquet",
+        plausibility=ancient("results/{machine}/frf/{run}/plausibility.tsv"),
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         findings="results/{machine}/frf/{run}/findings.tsv",
@@ -14,7 +37,6 @@ rule frf:
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
     params:
-        machine_config=machine_config,
         settings=config["frf"],
         source=log_source,
         dpi=config["figures"]["dpi"],

@@ -3,7 +3,9 @@
 A log from another writer can be well formed (`ambid.logs.validate_identification_log`)
 and still not be what it claims.  Three checks, each raising a `LogError` that
 names the file, the rows (or, for a converted thesis ``.m`` log, its lines)
-and the likely cause:
+and the likely cause.  Axes and outliers need no model and run in the FRF
+stage (`check_log`); units need the nominal model and run in their own rule
+before it (`check_units`), so that the FRF does not depend on the model.
 
 * **Axes**: the MIMO estimate ``P = V U^-1`` (`ambid.frf.mimo_etfe`) needs a
   run exciting each radial axis; a log without one is refused for it instead
@@ -89,8 +91,15 @@ def check_units(arrays, plant, source, model_source="the machine file"):
     source : str
     model_source : str
         The machine file, named as the other suspect.
+
+    Returns
+    -------
+    list of dict
+        One row per check passed: ``check`` (frequency / compliance / coil_current), ``axes``,
+        ``ratio`` (log over nominal model) and ``below_hz`` (the band compared; NaN for frequencies).
     """
     machine = plant.machine
+    rows = []
     for axes, grid in ((RADIAL_AXES, machine.radial_grid), ((AXIAL_AXIS,), machine.axial_grid)):
         frequency = np.concatenate([arrays[a][0] for a in axes if a in arrays] or [np.array([])])
         if frequency.size == 0:
@@ -103,6 +112,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the median frequency of {', '.join(a for a in axes if a in arrays)}", ratio, "frequency",
                     f"identification grid ({grid.start_hz:g}-{grid.stop_hz:g} Hz, frequency_grid)", model_source)
+        rows.append({"check": "frequency", "axes": " ".join(a for a in axes if a in arrays), "ratio": float(ratio),
+                     "below_hz": np.nan})
     first_flexible_hz = plant.modes.frequency_hz[RIGID_MODES]
     for axes, model in ((RADIAL_AXES, lambda f: np.diagonal(plant.radial_frequency_response(f), axis1=1, axis2=2)),
                         ((AXIAL_AXIS,), lambda f: plant.axial_frequency_response(f)[:, None])):
@@ -125,10 +136,13 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
+        rows.append({"check": "compliance", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
         ratio = float(np.median(np.concatenate(amplifier)))
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
                     "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
+        rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+    return rows
 
 
 @dataclass(frozen=True)
@@ -239,8 +253,8 @@ def exclude_outliers(frame, outliers, estimator):
     return frame[~drop].reset_index(drop=True)
 
 
-def check_log(frame, arrays, plant, settings, source, source_lines=None, original=None, model_source="the machine file"):
-    """All plausibility checks of an identification log, as the FRF stage runs them.
+def check_log(frame, arrays, settings, source, source_lines=None, original=None):
+    """The model-free plausibility checks of an identification log, as the FRF stage runs them (axes, outliers).
 
     Parameters
     ----------
@@ -248,16 +262,12 @@ def check_log(frame, arrays, plant, settings, source, source_lines=None, origina
         The validated log (noise filled in where it had none).
     arrays : dict
         `ambid.frf.log_arrays` of ``frame``.
-    plant : ambid.plant.Plant
-        The nominal model.
     settings : dict
         The ``frf:`` config section (`FRF_SETTINGS`).
     source : str
         The log file.
     source_lines, original : optional
         For a log converted from a thesis ``.m`` file: the line of each step (per axis) and the ``.m`` path.
-    model_source : str
-        The machine file of ``plant``.
 
     Returns
     -------
@@ -268,12 +278,10 @@ def check_log(frame, arrays, plant, settings, source, source_lines=None, origina
     Raises
     ------
     LogError
-        Missing radial axis (MIMO), units off the nominal model, or an outlier when
-        ``settings["outliers"] == "refuse"``.
+        A missing radial axis (MIMO), or an outlier when ``settings["outliers"] == "refuse"``.
     """
     settings = {**FRF_SETTINGS, **(settings or {})}
     check_axes(frame, settings["estimator"], original or source)
-    check_units(arrays, plant, original or source, model_source)
     steps = {}
     for axis, group in frame.groupby("excited_axis", sort=False):
         per_step = group.groupby("step")["amplitude_a"].first().sort_index()

@@ -240,7 +240,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     for run in identification_runs:
         base = f"frf/{run}"
         sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
-            _findings(root, f"{base}/findings.tsv", machine, f"the log of run `{run}` (plausibility before the FRF)")] + [
+            table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
+                                              "low-frequency compliance and coil-current ratio over the model's (a unit "
+                                              "error is 10^3 or 10^6 off; beyond 30x the run stops)."),
+            _findings(root, f"{base}/findings.tsv", machine, f"the log of run `{run}` (outlier steps, before the FRF)")] + [
             Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
             for name in ("radial_siso", "radial_mimo", "axial")]))
         features = read_tsv(root / f"fit/{run}/features.tsv")

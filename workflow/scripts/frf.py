@@ -1,4 +1,4 @@
-"""Rule `frf`: one identification run, checked against the nominal model -> SISO and MIMO ETFE, findings, Bode plots."""
+"""Rule `frf`: one identification run, its model-free checks -> SISO and MIMO ETFE, findings, Bode plots."""
 
 import numpy as np
 
@@ -7,8 +7,7 @@ from ambid.findings import write_findings
 from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
 from ambid.io import rule_log, write_parquet
 from ambid.logs import noise_from_scatter, read_identification_log
-from ambid.machine import RADIAL_AXES, machine_from_config
-from ambid.plant import Plant
+from ambid.machine import RADIAL_AXES
 from ambid.plausibility import check_log
 from ambid.plots import bode_measured, save_figure
 from ambid.uff import write_uff58
@@ -29,10 +28,8 @@ if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m f
     log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
              ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
 settings = snakemake.params.settings
-nominal = Plant(machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine,
-                                    source=snakemake.input.machine))
-frame, findings = check_log(frame, log_arrays(frame), nominal, settings, snakemake.input.log,
-                            metadata.get("source_lines"), metadata.get("original"), snakemake.input.machine)
+frame, findings = check_log(frame, log_arrays(frame), settings, snakemake.input.log, metadata.get("source_lines"),
+                            metadata.get("original"))
 for finding in findings:
     log.warning("%s", finding.message)
 arrays = log_arrays(frame)

@@ -1,0 +1,18 @@
+"""Rule `plausibility`: an identification log against the nominal model (units, band) -> plausibility.tsv or one error."""
+
+from ambid.frf import log_arrays
+from ambid.io import rule_log, write_tsv
+from ambid.logs import read_identification_log
+from ambid.machine import machine_from_config
+from ambid.plant import Plant
+from ambid.plausibility import check_units
+
+log = rule_log(snakemake.log[0], "plausibility")
+
+frame, info = read_identification_log(snakemake.input.log)
+nominal = Plant(machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine,
+                                    source=snakemake.input.machine))
+rows = check_units(log_arrays(frame), nominal, info["metadata"].get("original") or snakemake.input.log, snakemake.input.machine)
+for row in rows:
+    log.info("%s of %s: %.3g times the nominal model's", row["check"], row["axes"], row["ratio"])
+write_tsv(rows, snakemake.output.table)
