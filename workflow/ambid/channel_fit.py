@@ -793,7 +793,7 @@ def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_
     if not channel_fit.cost <= max_chi2:
         flag = "fit_failed"
         findings.append(Finding("fit", "failure", "fit_failed", label,
-                                f"chi2/dof {channel_fit.cost:.4g} above fit.max_chi2 {max_chi2:g} (rms relative misfit "
+                                f"chi2/dof {channel_fit.cost:.6g} above fit.max_chi2 {max_chi2:g} (rms relative misfit "
                                 f"{100 * misfit:.3g} %): the fitted model does not follow the data; its resonances and "
                                 "anti-resonances are not used by the model update", channel_fit.cost))
     elif model.delay_s < 0:

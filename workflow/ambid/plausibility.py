@@ -107,8 +107,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         ratio = np.median(frequency) / np.median(grid.frequency_hz)
         if abs(np.max(frequency) / grid.stop_hz / (2 * np.pi) - 1) < 0.01:
             raise LogError(source, f"frequencies of {', '.join(a for a in axes if a in arrays)} end at "
-                                   f"{np.max(frequency):.6g}, 2 pi times the machine's {grid.stop_hz:g} Hz: they look "
-                                   "like rad/s; the log must hold Hz")
+                                   f"{np.max(frequency):.6g}, 2 pi times the {grid.stop_hz:g} Hz of {model_source} "
+                                   "(frequency_grid): they look like rad/s; the log must hold Hz")
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the median frequency of {', '.join(a for a in axes if a in arrays)}", ratio, "frequency",
                     f"identification grid ({grid.start_hz:g}-{grid.stop_hz:g} Hz, frequency_grid)", model_source)
