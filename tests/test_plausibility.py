@@ -127,10 +127,12 @@ class TestOutliers:
         assert check_log(kept, log_arrays(kept), {}, "x.parquet")[1] == []
 
     def test_a_resonance_narrower_than_the_grid_is_no_outlier(self):
-        """A pole moves every channel the loop reaches at its step: not an isolated cell."""
+        """A pole moves two channels or more at its step (here, open loop: the positions of its plane only)."""
         frequency = np.linspace(1.0, 750.0, 250)
         mode = 1.0 / (1 - (frequency / frequency[120]) ** 2 + 2j * 1e-5 * frequency / frequency[120])
-        coefficients = np.outer(1e-3 * mode + 1.0, np.linspace(1.0, 2.0, 20)).astype(complex)
+        coefficients = np.outer(np.ones(250), np.linspace(1.0, 2.0, 20)).astype(complex)
+        for name in ("V2_DX", "V2_NX"):
+            coefficients[:, CHANNELS.index(name)] += 1e-3 * mode
         arrays = {"DX": (frequency, coefficients, np.full(coefficients.shape, 1e-9))}
         steps = {"DX": (np.arange(250), np.ones(250))}
         assert find_outliers(arrays, steps, 100.0) == []

@@ -20,9 +20,10 @@ before it (`check_units`), so that the FRF does not depend on the model.
   (a closed-loop transfer function, smooth in frequency), against the
   interpolation of its neighbours, in units of the larger of the logged noise
   and the local scatter of the neighbours' own interpolation residuals.  A cell
-  far above the threshold, alone at its step (a resonance moves every channel
-  the closed loop reaches: the excited axis' control current, both coil
-  currents and the position), is an outlier: a typo, a glitch.  The workflow
+  far above the threshold, alone at its step, is an outlier: a typo, a glitch.
+  A resonance narrower than the grid looks the same in one channel, but it
+  moves at least two at its step (in closed loop the excited axis' position,
+  control current and coil currents; open-loop, the positions of its plane).  The workflow
   refuses it, or excludes its step when ``frf.outliers: exclude``.
 """
 
@@ -45,7 +46,7 @@ FRF_SETTINGS = {"estimator": "mimo", "outliers": "refuse", "outlier_threshold": 
 #: A unit error is called when the log is this far from the nominal model (a model is rarely off by 3x).
 UNIT_FACTOR = 30.0
 _WINDOW = 6  # neighbours on each side that set an outlier's local scale
-_COHERENT = 3  # channels departing together at a step: a resonance, not a typo
+_COHERENT = 2  # channels departing together at a step: a resonance (seen by two sensors at least), not a typo
 
 
 def check_axes(frame, estimator, source):
@@ -199,9 +200,9 @@ def find_outliers(arrays, steps, threshold):
     -----
     A cell counts when its score exceeds ``threshold``, its residual is the
     largest of its own and its two neighbours' (the neighbours' residuals carry
-    half of it, by the interpolation), and fewer than three channels of its step
-    score above a tenth of the threshold (a resonance narrower than the grid moves
-    every channel the closed loop reaches together; a typo moves one).
+    half of it, by the interpolation), and no other channel of its step scores
+    above a tenth of the threshold (a resonance narrower than the grid moves two
+    channels or more together; a typo moves one).
     """
     found = []
     for axis, (frequency, coefficients, noise) in arrays.items():
