@@ -400,3 +400,24 @@ def test_case9_an_oversized_m_file_is_refused(workdir):
     assert_fails_once(snakemake(workdir, "data/demo20/thesis01/identification.parquet"),
                       f"{EXAMPLE_LOG}:1:65537: line longer than 65536 bytes")
     assert_nothing_written(workdir, "data/demo20/thesis01/identification.parquet")
+
+
+def test_case4_a_machine_file_or_config_section_changed_with_an_older_time_reruns(workdir):
+    import os
+    import re
+
+    demo20_only(workdir)
+    target = "results/demo20/fit/thesis01/features.tsv"
+    assert snakemake(workdir, target).returncode == 0
+    for path, old, new, rules in (("config/machines/demo20.yaml", "loss_factor: 0.004", "loss_factor: 0.005",
+                                   {"plausibility", "fit"}),
+                                  ("config/config.yaml", "max_chi2: 300.0", "max_chi2: 200.0", {"fit"})):
+        file = workdir / path
+        text = file.read_text()
+        assert old in text
+        file.write_text(text.replace(old, new))
+        os.utime(file, (1e9, 1e9))
+        dry = snakemake(workdir, target, "--dry-run")
+        assert rules <= set(re.findall(r"rule (\w+):", dry.stdout)) and "rule frf:" not in dry.stdout, dry.stdout[-2000:]
+        file.write_text(text)
+        os.utime(file, (1e9, 1e9))

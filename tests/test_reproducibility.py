@@ -79,6 +79,9 @@ def test_the_report_covers_every_stage_with_thesis_references(two_runs):
     figures = page.count('src="data:image/png;base64,')
     assert figures >= 20 and "http" not in page.split("<body>", 1)[1]  # embedded, nothing fetched
     assert "Missing: <code>" in page or "Nothing significant" in page  # the diagnoses, rendered
+    # where the log and the fit are quoted: the checks against the model and the findings (none on this run)
+    assert "The log against the nominal model" in page and "Findings of the log of run <code>ident01</code>" in page
+    assert "Findings of the fit of run <code>ident01</code>" in page
 
 
 def test_markdown_is_escaped():

@@ -108,3 +108,13 @@ def test_sampled_system_frequency_response_is_the_continuous_plant_with_hold_and
     hold = np.exp(-1j * np.pi * f * 5e-5)  # a zero-order hold is half a cycle of delay, to first order
     expected = delayed.radial_frequency_response(f) * hold[:, None, None]
     assert_allclose(system.frequency_response(f), expected, rtol=2e-3)
+
+
+def test_an_unstable_model_is_an_error_naming_it(demo_config):
+    from ambid.loop import check_stable
+
+    check_stable(Plant(machine_from_config(demo_config)), "nominal")
+    with pytest.raises(ModelError, match=r"^demo20.yaml: variant 'probe' is unstable in closed loop \(spectral radius "
+                                         r"1\.01174\d on DX, DY, NX, NY, 1\.0058\d+ on Z.*no ISO 14839-3 zone"):
+        check_stable(Plant(machine_from_config(with_effects(demo_config, ("delay", {"delay_s": 5e-3})))),
+                     "demo20.yaml: variant 'probe'")

@@ -20,10 +20,12 @@ and has no zone.
 
 import numpy as np
 
+from .errors import ModelError
 from .machine import AXIAL_AXIS, RADIAL_AXES
 from .plant import damping_ratio
 
-__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone", "zero_order_hold"]
+__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone", "zero_order_hold",
+           "check_stable"]
 
 ISO_14839_ZONES = ((3.0, "A"), (4.0, "B"), (5.0, "C"))
 
@@ -134,6 +136,25 @@ def stability_summary(plant, frequency_hz=None):
         axial = axial_transfer_functions(plant, frequency_hz, hold=True)["input_sensitivity"]
         rows.append(_row(AXIAL_AXIS, plant.axial_closed_loop_poles(), np.abs(axial[:, 0, 0]), frequency_hz))
     return rows
+
+
+def check_stable(plant, what):
+    """Raise `ModelError` when the sampled-data closed loop of ``plant`` (radial, and Z) is unstable.
+
+    A machine that levitates while it is measured cannot have a model whose loop diverges: such a model
+    variant has no ISO 14839-3 zone and nothing downstream of it (plant FRF, comparison, diagnosis) is
+    meaningful.  ``what`` names the model in the message (its machine file and variant).
+    """
+    loops = [("DX, DY, NX, NY", plant.closed_loop_poles())]
+    if plant.machine.axial_electromagnet is not None:
+        loops.append(("Z", plant.axial_closed_loop_poles()))
+    unstable = [(axes, loop.spectral_radius) for axes, loop in loops if loop.spectral_radius >= 1.0]
+    if unstable:
+        radii = ", ".join(f"{radius:.6f} on {axes}" for axes, radius in unstable)
+        raise ModelError(f"{what} is unstable in closed loop (spectral radius {radii}: the sampled loop with every effect "
+                         "of the model, delays and low-passes included), so it has no ISO 14839-3 zone and describes no "
+                         "levitating machine; check the controller gains and filters of the machine file and the delays, "
+                         "low-passes and eddy-current effects the variant adds")
 
 
 def _row(axis, closed_loop, sensitivity, frequency_hz):
