@@ -210,3 +210,25 @@ def test_a_non_causal_fit_is_refit_with_a_causal_structure(demo_config):
     assert any("zeros beyond the band as residual flexibility" in note for note in fit.dropped)
     assert [round(r["frequency_hz"]) for r in fit.features if r["kind"] == "resonance"] == [706]
     assert fit_verdict(fit, f, g, known, "DX/NX")[0] == ""
+
+
+def test_a_pole_zero_dipole_is_flagged_not_a_mode():
+    """A pole pair nearly cancelled by a zero pair (195.7 Hz, zeta 0.18, as on demo20's rig log) bends |G| by ~1 %."""
+    from ambid.channel_fit import ChannelFit, dipole_hz, feature_rows, fit_verdict
+
+    w = 2 * np.pi
+    truth = truth_channel()
+    pole, zero = (w * 195.7, 0.1799), (w * 195.674, 0.1776)
+    with_dipole = ChannelModel(truth.gain, truth.rigid_rad_s, np.append(truth.mode_rad_s, pole[0]),
+                               np.append(truth.mode_damping, pole[1]),
+                               np.vstack([truth.zero_factors, [2 * zero[1] * zero[0], zero[0] ** 2]]), delay_s=truth.delay_s)
+    assert [(round(p), round(z)) for p, z in dipole_hz(with_dipole, (1.0, 750.0))] == [(196, 196)]
+    assert dipole_hz(truth, (1.0, 750.0)) == []  # the mode at 600 Hz and the anti-resonance at 480 Hz are no dipole
+    rows = [{"root": "pole", "kind": "resonance", "number": 1, "frequency_hz": pole[0] / w, "damping_ratio": pole[1]},
+            {"root": "zero", "kind": "anti_resonance", "number": 1, "frequency_hz": zero[0] / w, "damping_ratio": zero[1]},
+            {"root": "pole", "kind": "resonance", "number": 2, "frequency_hz": 600.0, "damping_ratio": 0.01}]
+    fit = ChannelFit(with_dipole, rows, [], 8, 1.0, 10)
+    g = with_dipole.frequency_response(F)
+    flag, findings = fit_verdict(fit, F, g, None, "DX/DX")
+    assert flag == "" and [f.code for f in findings] == ["dipole"]
+    assert [r["flag"] for r in feature_rows(fit, "DX", "DX", "output_error", band_hz=(1.0, 750.0))] == ["dipole", "dipole", ""]

@@ -41,7 +41,7 @@ from .plant import RIGID_MODES, damping_ratio
 
 __all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "select_modes", "known_response", "rigid_pole_hz",
            "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes", "real_zero_hz",
-           "fit_verdict", "MAX_CHI2", "OVERDAMPED"]
+           "fit_verdict", "dipole_hz", "MAX_CHI2", "OVERDAMPED", "DIPOLE"]
 
 
 class FitError(AmbidError):
@@ -534,9 +534,10 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
         for alternative, zero_band in _alternative_structures(diagram, mode_hz):
             trial = _fit_structure(problem, alternative, zero_band)
             if _preferred(trial[0], best, omega, (f.min(), f.max()), noise_known):
+                why = ", ".join(_flaws(best, omega, (f.min(), f.max()))) or "a higher information criterion"
                 notes = trial[3] + [f"structure: {alternative.size} of the diagram's {mode_hz.size} mode(s)"
                                     + (", zeros beyond the band as residual flexibility" if zero_band < 1.5 else "")
-                                    + f" fit better than all of them (chi2/dof {_cost(trial[0]):.3g} against "
+                                    + f", preferred to a fit with {why} (chi2/dof {_cost(trial[0]):.3g} against "
                                       f"{_cost(best):.3g})"]
                 best, order, rigid_from_hint, mode_hz = trial[0], trial[1], trial[2], alternative
     dropped += notes
@@ -595,8 +596,30 @@ def _fit_structure(problem, mode_hz, zero_band=1.5):
 OVERDAMPED = LIGHT_DAMPING
 
 
+#: A resonance whose pole an anti-resonance of the same channel cancels to within this (largest relative change of
+#: |G| anywhere in the band) is a pole-zero dipole: it bends the response by a few percent, it is no mode.
+DIPOLE = 0.05
+
+
+def dipole_hz(model, band_hz):
+    """Frequencies [Hz] of the flexible poles of ``model`` that a complex zero nearly cancels (`DIPOLE`), and of those zeros."""
+    poles = model.mode_rad_s * (-model.mode_damping + 1j * np.sqrt(np.maximum(1 - model.mode_damping**2, 0.0)))
+    zeros = [np.roots([1.0, c1, c0])[0] for c1, c0 in model.zero_factors if c1**2 < 4 * c0]
+    found = []
+    for pole in poles:
+        for zero in zeros:
+            zero = zero if zero.imag > 0 else np.conj(zero)
+            # the pair changes |G| most near its own frequency: the band's grid and the pair's frequencies
+            s = 1j * np.concatenate([2 * np.pi * np.linspace(band_hz[0], band_hz[1], 400),
+                                     [pole.imag, zero.imag, abs(pole), abs(zero)]])
+            change = (s - zero) * (s - np.conj(zero)) / ((s - pole) * (s - np.conj(pole))) - 1
+            if np.max(np.abs(change)) < DIPOLE:
+                found.append((abs(pole) / (2 * np.pi), abs(zero) / (2 * np.pi)))
+    return found
+
+
 def _flaws(result, omega, band_hz):
-    """What makes a refinement physically implausible: a negative delay, overdamped in-band resonances."""
+    """What makes a refinement physically implausible: a negative delay, overdamped resonances, pole-zero dipoles."""
     model = _to_model(result[0].x, result[1], omega, result[2])
     flaws = []
     if model.delay_s < 0:
@@ -604,6 +627,7 @@ def _flaws(result, omega, band_hz):
     in_band = (model.mode_rad_s >= 2 * np.pi * band_hz[0]) & (model.mode_rad_s <= 2 * np.pi * band_hz[1])
     if np.any(in_band & (model.mode_damping > OVERDAMPED)):
         flaws.append("overdamped resonance")
+    flaws += ["pole-zero dipole"] * len(dipole_hz(model, band_hz))
     return flaws
 
 
@@ -807,24 +831,38 @@ def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_
                                     f"a fitted pole pair at {row['frequency_hz']:.4g} Hz with damping ratio "
                                     f"{row['damping_ratio']:.3g} > {OVERDAMPED}: no lightly damped mode; not used by the "
                                     "model update", row["damping_ratio"]))
+    for pole_hz, zero_hz in dipole_hz(model, (np.min(frequency_hz), np.max(frequency_hz))):
+        findings.append(Finding("fit", "warning", "dipole", label,
+                                f"the pole pair at {pole_hz:.4g} Hz and the zero pair at {zero_hz:.4g} Hz nearly cancel "
+                                f"(|G| changes by less than {100 * DIPOLE:g} % anywhere in the band): a bend of the response, "
+                                "no mode; not used by the model update", pole_hz))
     return flag, findings
 
 
-def feature_rows(channel_fit, output_axis, input_axis, estimator, flag=""):
+def feature_rows(channel_fit, output_axis, input_axis, estimator, flag="", band_hz=None):
     """The features of one fitted channel as table rows (resonances, anti-resonances, rigid poles, delay).
 
-    ``flag`` (`fit_verdict`) marks every row; a resonance damped more than `OVERDAMPED` is ``overdamped``.
+    ``flag`` (`fit_verdict`) marks every row; a resonance damped more than `OVERDAMPED` is ``overdamped``, the
+    pole and zero of a pole-zero dipole (`dipole_hz` in ``band_hz``, default: the span of the in-band features)
+    are ``dipole``.
     """
+    if band_hz is None:
+        in_band = [r["frequency_hz"] for r in channel_fit.features if r["kind"] in ("resonance", "anti_resonance")]
+        band_hz = (min(in_band, default=0.0), max(in_band, default=0.0))
+    dipoles = [f for pair in dipole_hz(channel_fit.model, band_hz) for f in pair]
     rows = []
     for row in channel_fit.features:
         if row["kind"] in ("stable_rigid",):
             continue
-        overdamped = row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED
+        if any(abs(row["frequency_hz"] / f - 1) < 1e-9 for f in dipoles) and row["kind"] in ("resonance", "anti_resonance"):
+            overdamped = "dipole"
+        else:
+            overdamped = "overdamped" if row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED else ""
         rows.append({"output": output_axis, "input": input_axis, "estimator": estimator, "root": row["root"],
                      "kind": row["kind"], "number": row["number"], "frequency_hz": row["frequency_hz"],
                      "damping_ratio": row["damping_ratio"], "frequency_std_hz": row.get("frequency_std_hz", np.nan),
                      "damping_std": row.get("damping_std", np.nan), "modal_constant": row.get("modal_constant", np.nan),
-                     "flag": flag or ("overdamped" if overdamped else "")})
+                     "flag": flag or overdamped})
     return rows
 
 

@@ -43,7 +43,7 @@ for output, input_axis in select_channels(settings["channels"]):
              result.cost, result.iterations, "; ".join(result.dropped) or "nothing")
     flag, verdict = fit_verdict(result, frequency, measured, known, label, settings.get("max_chi2", MAX_CHI2))
     findings += verdict
-    features += feature_rows(result, output, input_axis, "output_error", flag)
+    features += feature_rows(result, output, input_axis, "output_error", flag, (frequency.min(), frequency.max()))
     models.append(model_rows(result, output, input_axis))
     reference = levy_thesis(frequency, measured, numerator_order, denominator_order)
     for row in classify_poles(reference.poles, reference.zeros, (frequency.min(), frequency.max())):
