@@ -24,11 +24,12 @@ rule plausibility:
 
 
 rule frf:
-    # the log's model-free checks first (ambid.plausibility.check_log: radial runs, outlier cells); the check against
-    # the model must have passed, but a model change does not re-run the FRF (ancient)
+    # an FRF only of a log that passed the check against the model (so a model change re-runs both; the FRF's bytes
+    # do not change), then the log's model-free checks (ambid.plausibility.check_log: radial runs, outlier cells).
+    # Not ancient(): Snakemake then skips the FRF's own reasons to re-run (a changed frf section) while the check re-runs.
     input:
         log="data/{machine}/{run}/identification.parquet",
-        plausibility=ancient("results/{machine}/frf/{run}/plausibility.tsv"),
+        plausibility="results/{machine}/frf/{run}/plausibility.tsv",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         findings="results/{machine}/frf/{run}/findings.tsv",
