@@ -1,7 +1,7 @@
 # Two commands do all the set-up on a fresh machine with Python 3.11 and pip:
 #   make run   - create .venv, install, run the default workflow, print where the report is
 #   make test  - same bootstrap, run the test suite
-# Further targets: lint, crosscheck (ross, separate heavy environment), bench.
+# Further targets: lint (snakemake --lint, snakefmt --check), crosscheck (ross, separate heavy environment), bench.
 
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
@@ -30,6 +30,7 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/snakemake --lint
+	$(BIN)/snakefmt --check Snakefile rules
 
 $(ROSS_STAMP): requirements-ross.txt pyproject.toml
 	$(PYTHON) -m venv $(ROSS_VENV)

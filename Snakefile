@@ -14,12 +14,15 @@ include: "rules/acquire.smk"
 include: "rules/calibrate.smk"
 include: "rules/frf.smk"
 include: "rules/fit.smk"
+include: "rules/export.smk"
 include: "rules/update.smk"
 include: "rules/diagnose.smk"
 include: "rules/report.smk"
 
 
 rule all:
+    default_target: True
     input:
         all_outputs(),
-    default_target: True
+    message:
+        "every machine's report"

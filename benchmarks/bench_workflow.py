@@ -64,7 +64,7 @@ def part_default(parent):
     rerun = jobs(output)
     print(f"hs_eden_like steel modulus -2 %:            {wall:6.1f} s wall, {sum(rerun.values())} jobs: "
           + ", ".join(f"{rule} {n}" for rule, n in sorted(rerun.items())))
-    untouched = {"acquire_calibration", "acquire_identification", "frf", "import_thesis_m"} & set(rerun)
+    untouched = {"acquire_calibration", "acquire_identification", "frf", "import_log"} & set(rerun)
     print(f"  acquisition / FRF re-run: {sorted(untouched) or 'none'}")
 
 

@@ -5,15 +5,24 @@
 
 
 rule acquire_identification:
-    # centred on the magnetic center its calibration run found (thesis ch. 6), when the run names one
     input:
         unpack(identification_center),
         unpack(rig_files),
-    wildcard_constraints:
-        run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/identification.parquet",
         mfile="data/{machine}/{run}/identification.m",
+    log:
+        "logs/{machine}/acquire_identification_{run}.log",
+    benchmark:
+        "logs/{machine}/acquire_identification_{run}.benchmark.tsv"
+    wildcard_constraints:
+        run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,  # minutes (cluster executors)
     params:
         as_built_config=as_built_config,
         rig_config=rig_config,
@@ -21,14 +30,9 @@ rule acquire_identification:
         calibration=config["calibration"],
         seed=run_seed,
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/acquire_identification_{run}.log",
-    benchmark:
-        "logs/{machine}/acquire_identification_{run}.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,  # minutes (cluster executors)
+    # centred on the magnetic center its calibration run found (thesis ch. 6), when the run names one
+    message:
+        "{wildcards.machine} {wildcards.run}: stepped-sine identification on the virtual rig (thesis ch. 4.2)"
     script:
         "../workflow/scripts/acquire_identification.py"
 
@@ -36,36 +40,48 @@ rule acquire_identification:
 rule acquire_calibration:
     input:
         unpack(rig_files),
-    wildcard_constraints:
-        run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
     output:
         log="data/{machine}/{run}/calibration.parquet",
+    log:
+        "logs/{machine}/acquire_calibration_{run}.log",
+    benchmark:
+        "logs/{machine}/acquire_calibration_{run}.benchmark.tsv"
+    wildcard_constraints:
+        run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         as_built_config=as_built_config,
         rig_config=rig_config,
         settings=config["calibration"],
         seed=run_seed,
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/acquire_calibration_{run}.log",
-    benchmark:
-        "logs/{machine}/acquire_calibration_{run}.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine} {wildcards.run}: magnetic center calibration on the virtual rig (thesis ch. 3.3)"
     script:
         "../workflow/scripts/acquire_calibration.py"
 
 
 rule calibration_sensitivity:
-    # a virtual experiment: the method run with wrong g0, b, theta or a current-sensor offset,
-    # scored against the rig's truth (which is why it lives with the rig rules)
     input:
         unpack(rig_files),
         machine=machine_model_file,
     output:
         table="results/{machine}/calibration/{run}/sensitivity.tsv",
+    log:
+        "logs/{machine}/calibration_sensitivity_{run}.log",
+    benchmark:
+        "logs/{machine}/calibration_sensitivity_{run}.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         machine_config=machine_config,
         as_built_config=as_built_config,
@@ -73,13 +89,9 @@ rule calibration_sensitivity:
         settings=config["calibration"],
         seed=run_seed,
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/calibration_sensitivity_{run}.log",
-    benchmark:
-        "logs/{machine}/calibration_sensitivity_{run}.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    # a virtual experiment: the method run with wrong g0, b, theta or a current-sensor offset,
+    # scored against the rig's truth (which is why it lives with the rig rules)
+    message:
+        "{wildcards.machine} {wildcards.run}: sensitivity of the magnetic center to parameter errors (rig)"
     script:
         "../workflow/scripts/calibration_sensitivity.py"

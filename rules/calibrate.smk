@@ -13,17 +13,21 @@ rule calibrate:
         stiffness="results/{machine}/calibration/{run}/stiffness.tsv",
         operating_point="results/{machine}/calibration/{run}/operating_point.yaml",
         convergence="results/{machine}/calibration/{run}/figures/convergence.png",
+    log:
+        "logs/{machine}/calibrate_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         machine_config=machine_config,
         settings=config["calibration"],
         source=log_source,
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/calibrate_{run}.log",
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine} {wildcards.run}: magnetic center from the calibration log (thesis ch. 3, 6.1)"
     script:
         "../workflow/scripts/calibrate.py"

@@ -45,8 +45,10 @@ def read_machine_file(path, key, name):
     return machine_config
 
 
-MACHINE_CONFIGS = {name: read_machine_file(entry["model"], f"machines.{name}.model", name)
-                   for name, entry in config["machines"].items()}
+MACHINE_CONFIGS = {
+    name: read_machine_file(entry["model"], f"machines.{name}.model", name)
+    for name, entry in config["machines"].items()
+}
 
 
 def load_rig_config(name):
@@ -92,15 +94,21 @@ def check_variants(machine):
                 except ConfigError as error:
                     raise error.within(path) from None
             run = spec.get("update")
-            if run is not None and (RUNS.get((machine, run), {}).get("kind") != "identification" or not entry.get("update")):
-                raise ConfigError(f"{path}.update", f"needs an identification run of {machine} and machines.{machine}.update")
+            if run is not None and (
+                RUNS.get((machine, run), {}).get("kind") != "identification" or not entry.get("update")
+            ):
+                raise ConfigError(
+                    f"{path}.update", f"needs an identification run of {machine} and machines.{machine}.update"
+                )
     cal = entry.get("operating_point")
     if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
         raise ConfigError(f"machines.{machine}.operating_point", f"{cal!r} is not a calibration run of {machine}")
     for run, spec in (entry.get("runs") or {}).items():
         cal = spec.get("calibration")
         if cal is not None and RUNS.get((machine, cal), {}).get("kind") != "calibration":
-            raise ConfigError(f"machines.{machine}.runs.{run}.calibration", f"{cal!r} is not a calibration run of {machine}")
+            raise ConfigError(
+                f"machines.{machine}.runs.{run}.calibration", f"{cal!r} is not a calibration run of {machine}"
+            )
 
 
 for _machine in config["machines"]:
@@ -116,9 +124,12 @@ def check_stage_settings():
             settings = UpdateSettings.from_config(config["update"], entry["update"])
             settings.check_against(machine_from_config(MACHINE_CONFIGS[name], name=name), f"machines.{name}.update")
             if settings.modes > fit_modes:
-                raise ConfigError("update.modes", f"{settings.modes} flexible modes, but the fit gives a channel "
-                                                  f"{fit_modes} at most (fit.modes / fit.orders)")
-    bands = config["compare"]["bands_hz"]
+                raise ConfigError(
+                    "update.modes",
+                    f"{settings.modes} flexible modes, but the fit gives a channel "
+                    f"{fit_modes} at most (fit.modes / fit.orders)",
+                )
+    bands = config["compare"]["bands_hz"] or []  # null: bands from the measured grid
     if any(b <= a for a, b in zip(bands, bands[1:])):
         raise ConfigError("compare.bands_hz", f"lower band edges must increase strictly, got {bands}")
 
@@ -160,7 +171,10 @@ def machine_config(wildcards):
 
 def rig_files(wildcards):
     """The rig's truth and its as-built machine file (inputs of the acquisition rules)."""
-    return {"rig": config["machines"][wildcards.machine]["rig"], "as_built": RIG_CONFIGS[wildcards.machine][0]["as_built"]}
+    return {
+        "rig": config["machines"][wildcards.machine]["rig"],
+        "as_built": RIG_CONFIGS[wildcards.machine][0]["as_built"],
+    }
 
 
 def rig_config(wildcards):
@@ -178,8 +192,10 @@ def run_seed(wildcards):
 def variant_steps(wildcards):
     """The variant's chain as the variant rule's param: name, effects and update run of each step."""
     variants = config["machines"][wildcards.machine].get("variants") or {}
-    return [{"name": name, "effects": spec.get("effects") or [], "update": spec.get("update")}
-            for name, spec in variant_chain(variants, wildcards.variant, f"machines.{wildcards.machine}.variants")]
+    return [
+        {"name": name, "effects": spec.get("effects") or [], "update": spec.get("update")}
+        for name, spec in variant_chain(variants, wildcards.variant, f"machines.{wildcards.machine}.variants")
+    ]
 
 
 def variant_inputs(wildcards):
@@ -187,9 +203,14 @@ def variant_inputs(wildcards):
     entry = config["machines"][wildcards.machine]
     inputs = {"machine": entry["model"]}
     if entry.get("operating_point"):
-        inputs["operating_point"] = f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
-    inputs["updates"] = [f"results/{wildcards.machine}/update/{step['update']}/machine.yaml"
-                         for step in variant_steps(wildcards) if step["update"]]
+        inputs["operating_point"] = (
+            f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
+        )
+    inputs["updates"] = [
+        f"results/{wildcards.machine}/update/{step['update']}/machine.yaml"
+        for step in variant_steps(wildcards)
+        if step["update"]
+    ]
     return inputs
 
 
@@ -203,20 +224,68 @@ def identification_center(wildcards):
     return {"calibration_log": f"data/{wildcards.machine}/{cal}/calibration.parquet"} if cal else {}
 
 
+#: the user's file in data/<machine>/<run>/ by run format, unless the run names its own (key `file`)
+USER_FILES = {"m": "identification.m", "table": "identification.csv", "mat": "identification.mat", "uff": "frf.uff"}
+
+
+def imported_runs():
+    """Runs whose raw log is a user's file in another format (converted by rule import_log)."""
+    return [
+        run
+        for (_, run), spec in RUNS.items()
+        if spec["source"] == "data" and spec.get("format") in ("m", "table", "mat")
+    ]
+
+
+def user_log_file(wildcards):
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return f"data/{wildcards.machine}/{wildcards.run}/{spec.get('file') or USER_FILES[spec['format']]}"
+
+
+def reader_units(wildcards):
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return {key: spec[key] for key in ("position_unit", "current_unit") if key in spec}
+
+
+def uff_options(wildcards):
+    """Reader options of a run with format uff (empty for the others)."""
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    return {
+        key: spec[key]
+        for key in ("estimator", "position_unit", "current_unit")
+        if key in spec and spec["format"] == "uff"
+    }
+
+
+def frf_input(wildcards):
+    """The FRF stage's input: the canonical log, or a run's UFF58 FRFs (format uff)."""
+    if RUNS[(wildcards.machine, wildcards.run)].get("format") == "uff":
+        return {"uff": user_log_file(wildcards)}
+    return {"log": f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"}
+
+
 def log_source(wildcards):
     """A user's log of a run and its content digest (a param, so that a changed log reruns what depends on it
     whatever its modification time: cp -p, rsync -a, tar); empty for logs the workflow acquires."""
     spec = RUNS[(wildcards.machine, wildcards.run)]
     if spec["source"] != "data":
         return {}
-    name = "identification" if spec["kind"] == "identification" else "calibration"
-    path = f"data/{wildcards.machine}/{wildcards.run}/{name}.{'m' if spec.get('format') == 'm' else 'parquet'}"
+    if spec["kind"] != "identification":
+        path = f"data/{wildcards.machine}/{wildcards.run}/calibration.parquet"
+    elif spec.get("format", "parquet") == "parquet":
+        path = f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"
+    else:
+        path = user_log_file(wildcards)
     return {"file": path, "digest": file_digest(path)}
 
 
-def thesis_m_runs():
-    """Runs whose raw log is a user's thesis-style .m file (converted by rule import_thesis_m)."""
-    return [run for (_, run), spec in RUNS.items() if spec["source"] == "data" and spec.get("format") == "m"]
+for (_machine, _run), _spec in RUNS.items():
+    if _spec.get("file") in ("identification.parquet",) and _spec.get("format") != "parquet":
+        raise ConfigError(
+            f"machines.{_machine}.runs.{_run}.file",
+            "identification.parquet is the canonical log the "
+            "import writes; name your file otherwise (e.g. identification.csv)",
+        )
 
 
 def runs_of(kind, source=None):
@@ -243,10 +312,35 @@ MODEL_OUTPUTS = [
     "figures/axial_bode.png",
     "figures/mode_shapes.png",
 ]
-FRF_OUTPUTS = ["plausibility.tsv", "frf.parquet", "findings.tsv", "frf.uff", "figures/radial_siso.png", "figures/radial_mimo.png", "figures/axial.png"]
-FIT_OUTPUTS = ["features.parquet", "features.tsv", "findings.tsv", "models.parquet", "figures/bode_fit.png", "figures/stabilization.png"]
-COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "figures/bode_compare.png", "figures/error_map.png"]
-DIAGNOSE_OUTPUTS = ["candidates.tsv", "diagnosis.md", "figures/fingerprint.png"]
+FRF_OUTPUTS = [
+    "plausibility.tsv",
+    "frf.parquet",
+    "floor.tsv",
+    "findings.tsv",
+    "frf.uff",
+    "figures/radial_siso.png",
+    "figures/radial_mimo.png",
+    "figures/axial.png",
+]
+FIT_OUTPUTS = [
+    "features.parquet",
+    "features.tsv",
+    "findings.tsv",
+    "models.parquet",
+    "figures/bode_fit.png",
+    "figures/stabilization.png",
+]
+EXPORT_OUTPUTS = ["frf.csv", "frf.mat", "models.csv", "models.mat"]
+COMPARE_OUTPUTS = ["errors.parquet", "summary.tsv", "findings.tsv", "figures/bode_compare.png", "figures/error_map.png"]
+DIAGNOSE_OUTPUTS = [
+    "candidates.tsv",
+    "joint.tsv",
+    "cells.tsv",
+    "findings.tsv",
+    "verdict.tsv",
+    "diagnosis.md",
+    "figures/fingerprint.png",
+]
 LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
 
 
@@ -268,18 +362,32 @@ def machine_outputs(machine):
     identification = runs_of_machine(machine)
     calibration = runs_of_machine(machine, "calibration")
     rig_runs = {run for m, run in runs_of("identification", "rig") + runs_of("calibration", "rig") if m == machine}
-    outputs = [f"data/{machine}/{run}/identification.{suffix}" for run in identification if run in rig_runs
-               for suffix in ("parquet", "m")]
+    outputs = [
+        f"data/{machine}/{run}/identification.{suffix}"
+        for run in identification
+        if run in rig_runs
+        for suffix in ("parquet", "m")
+    ]
     outputs += [f"results/{machine}/calibration/{run}/{name}" for run in calibration for name in CALIBRATION_OUTPUTS]
     outputs += [f"results/{machine}/calibration/{run}/sensitivity.tsv" for run in calibration if run in rig_runs]
-    outputs += [f"results/{machine}/{stage}/{run}/{name}" for run in identification
-                for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS)) for name in names]
+    outputs += [
+        f"results/{machine}/{stage}/{run}/{name}"
+        for run in identification
+        for stage, names in (("frf", FRF_OUTPUTS), ("fit", FIT_OUTPUTS), ("export", EXPORT_OUTPUTS))
+        for name in names
+    ]
     if config["machines"][machine].get("update"):
         outputs += [f"results/{machine}/update/{run}/{name}" for run in identification for name in UPDATE_OUTPUTS]
-    outputs += [f"results/{machine}/model/{variant}/{name}" for variant in variants_of(machine) for name in MODEL_OUTPUTS]
-    outputs += [f"results/{machine}/{stage}/{run}/{variant}/{name}" for run in identification
-                for variant in variants_of(machine)
-                for stage, names in (("compare", COMPARE_OUTPUTS), ("diagnose", DIAGNOSE_OUTPUTS)) for name in names]
+    outputs += [
+        f"results/{machine}/model/{variant}/{name}" for variant in variants_of(machine) for name in MODEL_OUTPUTS
+    ]
+    outputs += [
+        f"results/{machine}/{stage}/{run}/{variant}/{name}"
+        for run in identification
+        for variant in variants_of(machine)
+        for stage, names in (("compare", COMPARE_OUTPUTS), ("diagnose", DIAGNOSE_OUTPUTS))
+        for name in names
+    ]
     if identification:
         outputs += [f"results/{machine}/ledger/{name}" for name in LEDGER_OUTPUTS]
     return outputs

@@ -12,18 +12,22 @@ rule fit:
         models="results/{machine}/fit/{run}/models.parquet",
         bode="results/{machine}/fit/{run}/figures/bode_fit.png",
         stabilization="results/{machine}/fit/{run}/figures/stabilization.png",
+    log:
+        "logs/{machine}/fit_{run}.log",
+    benchmark:
+        "logs/{machine}/fit_{run}.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         machine_config=machine_config,
         settings=config["fit"],
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/fit_{run}.log",
-    benchmark:
-        "logs/{machine}/fit_{run}.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine} {wildcards.run}: parametric fits, resonances and anti-resonances (thesis ch. 5.1)"
     script:
         "../workflow/scripts/fit.py"

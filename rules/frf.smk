@@ -1,24 +1,29 @@
-# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log.
+# Stage "frf": empirical transfer function estimates (thesis eq. 4.1), SISO and MIMO, from the raw log
+# (or, for a run with format uff, a user's UFF58 FRFs when no raw log exists).
 
 
 rule plausibility:
     # the log against the nominal model, before the FRF (ambid.plausibility.check_units): frequencies, compliance and
     # coil currents within 30x of the model, or one error naming the likely unit
     input:
-        log="data/{machine}/{run}/identification.parquet",
+        unpack(frf_input),
         machine=machine_model_file,
     output:
         table="results/{machine}/frf/{run}/plausibility.tsv",
-    params:
-        machine_config=machine_config,
-        source=log_source,
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/plausibility_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        machine_config=machine_config,
+        source=log_source,
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: the log against the nominal model (frequency, position and current units)"
     script:
         "../workflow/scripts/plausibility.py"
 
@@ -28,46 +33,59 @@ rule frf:
     # do not change), then the log's model-free checks (ambid.plausibility.check_log: radial runs, outlier cells).
     # Not ancient(): Snakemake then skips the FRF's own reasons to re-run (a changed frf section) while the check re-runs.
     input:
-        log="data/{machine}/{run}/identification.parquet",
+        unpack(frf_input),
         plausibility="results/{machine}/frf/{run}/plausibility.tsv",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
+        floor="results/{machine}/frf/{run}/floor.tsv",
         findings="results/{machine}/frf/{run}/findings.tsv",
         uff="results/{machine}/frf/{run}/frf.uff",
         radial_siso="results/{machine}/frf/{run}/figures/radial_siso.png",
         radial_mimo="results/{machine}/frf/{run}/figures/radial_mimo.png",
         axial="results/{machine}/frf/{run}/figures/axial.png",
+    log:
+        "logs/{machine}/frf_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         settings=config["frf"],
         source=log_source,
         dpi=config["figures"]["dpi"],
+        uff_options=uff_options,
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/frf_{run}.log",
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine} {wildcards.run}: SISO, MIMO and coil-current FRFs (thesis eq. 4.1) and their floor"
     script:
         "../workflow/scripts/frf.py"
 
 
-rule import_thesis_m:
-    # a user's thesis-style .m log, parsed by a strict grammar (never evaluated) into the Parquet log
+rule import_log:
     input:
-        mfile="data/{machine}/{run}/identification.m",
+        raw=user_log_file,
     output:
         log="data/{machine}/{run}/identification.parquet",
-    wildcard_constraints:
-        run="|".join(thesis_m_runs()) or "no_thesis_m_runs",
     log:
-        "logs/{machine}/import_thesis_m_{run}.log",
-    params:
-        source=log_source,
-        library=LIBRARY_DIGEST,
+        "logs/{machine}/import_log_{run}.log",
+    wildcard_constraints:
+        run="|".join(imported_runs()) or "no_imported_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
+        units=reader_units,
+        source=log_source,
+        library=LIBRARY_DIGEST,
+    # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
+    # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated
+    message:
+        "{wildcards.machine} {wildcards.run}: {input.raw} converted into the canonical log"
     script:
-        "../workflow/scripts/import_thesis_m.py"
+        "../workflow/scripts/import_log.py"

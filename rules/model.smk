@@ -2,23 +2,27 @@
 
 
 rule variant:
-    # a variant's machine config: the machine file, the calibrated operating point, added effects, updates
     input:
         unpack(variant_inputs),
     output:
         machine="results/{machine}/model/{variant}/machine.yaml",
-    params:
-        machine_config=machine_config,
-        steps=variant_steps,
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/variant_{variant}.log",
     benchmark:
         "logs/{machine}/variant_{variant}.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        machine_config=machine_config,
+        steps=variant_steps,
+        library=LIBRARY_DIGEST,
+    # a variant's machine config: the machine file, the calibrated operating point, added effects, updates
+    message:
+        "{wildcards.machine}: machine file of model variant {wildcards.variant}"
     script:
         "../workflow/scripts/variant.py"
 
@@ -33,16 +37,20 @@ rule model:
         bode="results/{machine}/model/{variant}/figures/plant_bode.png",
         axial_bode="results/{machine}/model/{variant}/figures/axial_bode.png",
         mode_shapes="results/{machine}/model/{variant}/figures/mode_shapes.png",
-    params:
-        dpi=config["figures"]["dpi"],
-        library=LIBRARY_DIGEST,
     log:
         "logs/{machine}/model_{variant}.log",
     benchmark:
         "logs/{machine}/model_{variant}.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
+    params:
+        dpi=config["figures"]["dpi"],
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine}: modes, plant FRF and stability of model variant {wildcards.variant}"
     script:
         "../workflow/scripts/model.py"

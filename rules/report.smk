@@ -9,6 +9,16 @@ rule report:
         lambda wildcards: machine_outputs(wildcards.machine),
     output:
         report="results/{machine}/report.html",
+    log:
+        "logs/{machine}/report.log",
+    benchmark:
+        "logs/{machine}/report.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         calibration_runs=lambda wildcards: runs_of_machine(wildcards.machine, "calibration"),
         identification_runs=lambda wildcards: runs_of_machine(wildcards.machine),
@@ -16,13 +26,7 @@ rule report:
         updated=lambda wildcards: bool(config["machines"][wildcards.machine].get("update")),
         captions=CAPTIONS,
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/report.log",
-    benchmark:
-        "logs/{machine}/report.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine}: the HTML report"
     script:
         "../workflow/scripts/report.py"

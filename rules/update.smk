@@ -16,19 +16,23 @@ rule update:
         bode="results/{machine}/update/{run}/figures/bode_update.png",
         modulus="results/{machine}/update/{run}/figures/youngs_modulus.png",
         convergence="results/{machine}/update/{run}/figures/convergence.png",
+    log:
+        "logs/{machine}/update_{run}.log",
+    benchmark:
+        "logs/{machine}/update_{run}.benchmark.tsv"
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
     params:
         machine_config=machine_config,
         machine_update=lambda wildcards: config["machines"][wildcards.machine].get("update", {}),
         settings=config["update"],
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
-    log:
-        "logs/{machine}/update_{run}.log",
-    benchmark:
-        "logs/{machine}/update_{run}.benchmark.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,  # minutes (cluster executors)
+    message:
+        "{wildcards.machine} {wildcards.run}: rotor model update (thesis ch. 5.2)"
     script:
         "../workflow/scripts/update.py"

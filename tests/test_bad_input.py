@@ -259,7 +259,7 @@ def test_case4_a_log_replaced_by_an_older_file_reruns(workdir):
     os.utime(older, (1e9, 1e9))  # 2001
     subprocess.run(["cp", "-p", str(older), str(workdir / EXAMPLE_LOG)], check=True)
     dry = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet", "--dry-run")
-    assert {"import_thesis_m", "plausibility", "frf"} <= set(re.findall(r"rule (\w+):", dry.stdout)), dry.stdout[-2000:]
+    assert {"import_log", "plausibility", "frf"} <= set(re.findall(r"rule (\w+):", dry.stdout)), dry.stdout[-2000:]
     assert snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet").returncode == 0
     with tarfile.open(workdir / "logs.tar", "w") as archive:  # an archive unpacked over the run keeps old mtimes
         cells[6] = "-22.26+27.22i"
@@ -270,7 +270,7 @@ def test_case4_a_log_replaced_by_an_older_file_reruns(workdir):
     with tarfile.open(workdir / "logs.tar") as archive:
         archive.extractall(workdir, filter="data")
     dry = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet", "--dry-run")
-    assert "import_thesis_m" in dry.stdout and "Nothing to be done" not in dry.stdout
+    assert "import_log" in dry.stdout and "Nothing to be done" not in dry.stdout
 
 
 def test_case4_a_leftover_converted_log_never_stands_for_another_m(workdir):
@@ -421,6 +421,37 @@ def test_case4_a_machine_file_or_config_section_changed_with_an_older_time_rerun
         os.utime(file, (1e9, 1e9))
         dry = snakemake(workdir, target, "--dry-run")
         assert rules <= set(re.findall(r"rule (\w+):", dry.stdout)), dry.stdout[-2000:]
-        assert "import_thesis_m" not in dry.stdout and ("rule frf:" in dry.stdout) == ("frf" in rules)
+        assert "import_log" not in dry.stdout and ("rule frf:" in dry.stdout) == ("frf" in rules)
         file.write_text(text)
         os.utime(file, (1e9, 1e9))
+
+
+def test_plain_parquet_is_refused_naming_the_keys_and_the_way_in(workdir):
+    """A log with the documented columns written by pandas.to_parquet, as format parquet (the canonical log)."""
+    identification_frame(steps()).to_parquet(user_run(workdir) / "identification.parquet")
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.parquet")
+    assert "ambid.schema_version, ambid.kind and ambid.units" in message and "--format table" in message
+
+
+def test_constant_channel_of_an_m_file_names_the_m_file_and_that_channel_only(workdir):
+    """The noise estimate of a .m log (no noise in the format) fails on a stuck channel: the message names the user's .m
+    and the one stuck channel, not the Parquet it was converted to nor the channels a bearing's run leaves out."""
+    records = steps()
+    for record in records:  # each bearing's channels only, written in the 18 + 6 column layout
+        own = [c for c in CHANNELS if c.endswith("_Z") == (record["excited_axis"] == "Z")]
+        record["coefficients"] = np.array([record["coefficients"][CHANNELS.index(c)] for c in own]) * (1 + 0.01 * record["step"] ** 2)
+        record["coefficients"][own.index(f"U2_{record['excited_axis']}")] = 0.5 + 0.01 * record["step"] ** 2
+        if "I_upper_NX" in own:
+            record["coefficients"][own.index("I_upper_NX")] = 0.1  # stuck
+        record["noise_std"], record["channels"] = np.zeros(len(own)), own
+    write_thesis_m(identification_frame(records), user_run(workdir, "m") / "identification.m")
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.m")
+    assert "channel(s) I_upper_NX do not scatter" in message and "I_lower_NX" not in message
+    assert_nothing_written(workdir, "results/demo20/frf/bad01")
+
+
+def test_unreadable_mat_file(workdir):
+    (user_run(workdir, "mat") / "identification.mat").write_bytes(b"\x00" * 200)
+    message = assert_fails_once(snakemake(workdir, FRF), "data/demo20/bad01/identification.mat")
+    assert "not a readable MATLAB .mat file" in message
+    assert_nothing_written(workdir, "data/demo20/bad01/identification.parquet", "results/demo20/frf/bad01")

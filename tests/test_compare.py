@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from ambid.compare import CompareError, channel_errors, model_channels, summarize
+from ambid.compare import CompareError, channel_errors, model_channels, model_response, summarize
+from ambid.machine import RADIAL_AXES as AXES
 from ambid.effects import effect_from_config
 from ambid.plant import Plant
 
@@ -38,9 +39,13 @@ def test_a_missing_delay_shows_as_phase_lag_growing_with_frequency(demo_machine)
     channel = errors[(errors["output"] == "DX") & (errors["input"] == "DX")]
     # the model lacks the lag: its phase leads by 360 f tau (36 deg at 1 kHz), magnitude unchanged
     np.testing.assert_allclose(channel["phase_error_deg"], 360 * F * 1e-4, atol=2.5)
-    summary = summarize(errors)
-    bands = summary[(summary["output"] == "DX") & (summary["input"] == "DX")].set_index("band")
-    assert bands.loc["300-1000 Hz", "excess"] > 100 * max(bands.loc["0-10 Hz", "excess"], 1.0)
+    summary = summarize(errors)  # bands from the measured grid
+    bands = summary[(summary["output"] == "DX") & (summary["input"] == "DX") & (summary["band"] != "all")]
+    assert bands["band"].iloc[0].startswith(f"{F[0]:.4g}-") and bands["band"].iloc[-1].endswith(f"-{F[-1]:.4g} Hz")
+    assert bands["points"].min() >= 20 and bands["points"].sum() == F.size
+    assert bands["excess"].iloc[-1] > 100 * max(bands["excess"].iloc[0], 1.0)
+    fixed = summarize(errors, [0, 10, 100, 300, 1000, np.inf]).set_index(["output", "input", "band"])
+    assert fixed.loc[("DX", "DX", "300-1000 Hz"), "excess"] > 100 * max(fixed.loc[("DX", "DX", "0-10 Hz"), "excess"], 1.0)
 
 
 def test_no_uncertainty_or_no_common_channel_is_an_error(demo_plant):
@@ -49,3 +54,33 @@ def test_no_uncertainty_or_no_common_channel_is_an_error(demo_plant):
         channel_errors({("DX", "DX"): (F, model[("DX", "DX")], np.zeros(F.size))}, model)
     with pytest.raises(CompareError, match="no channel"):
         channel_errors({("DY", "DY"): (F, model[("DX", "DX")], np.ones(F.size))}, model)
+
+
+def test_enough_modes_for_a_stiff_rotor_with_lumped_masses(demo_config):
+    """A stiffer rotor carrying disks: the plain 12-mode truncation misses its anti-resonances by more than the floor
+    tolerates; the static correction of `Rotor.planar_modes` keeps 12 modes enough, and `enough_modes` checks it."""
+    import copy
+    from dataclasses import replace
+
+    from ambid.compare import enough_modes, truncation_error
+    from ambid.machine import machine_from_config
+
+    config = copy.deepcopy(demo_config)
+    for element in config["rotor"]["elements"]:
+        element["outer_diameter_m"] = 0.06
+    config["rotor"]["disks"] = [{"node": n, "mass_kg": 3.0, "polar_inertia_kg_m2": 4e-3, "transverse_inertia_kg_m2": 2e-3}
+                                for n in (3, 10, 17)]
+    machine = machine_from_config(config)
+    frequency = machine.radial_grid.frequency_hz
+    reference = model_response(Plant(replace(machine, retained_modes=40)), {(o, i): (frequency,) for o in AXES for i in AXES})
+    measured = {key: (frequency, values, 1e-3 * np.abs(values) + 1e-12) for key, values in reference.items()}
+    plain = model_response(Plant(machine, static_correction=False), measured)
+    plain_error = max(np.max(np.abs(plain[k] - reference[k]) / measured[k][2]) for k in measured)
+    assert plain_error > 0.1  # what a plain truncation at 12 modes would leave: above a tenth of a 0.1 % floor
+    assert truncation_error(machine, measured, 12, reference)[0] < 0.1
+    modes, own, error = enough_modes(machine, measured)
+    assert modes == 12 and own[0] < 0.1 and error[0] < 0.1
+    # with the floor a hundred times finer, 12 modes are not enough: more are chosen
+    fine = {key: (f, values, std / 100) for key, (f, values, std) in measured.items()}
+    modes, own, error = enough_modes(machine, fine)
+    assert modes > 12 and own[0] > 0.1 and error[0] <= 0.1

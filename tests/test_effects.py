@@ -35,7 +35,7 @@ class TestRegistry:
     def test_all_design_effects_registered(self):
         assert set(EFFECTS) == {
             "amplifier_lowpass", "sensor_lowpass", "delay", "eddy_current", "noncollocation",
-            "foundation_mode", "cross_coupling", "gyroscopic", "element_stiffness", "modal_damping",
+            "foundation_mode", "cross_coupling", "gyroscopic", "element_stiffness", "modal_damping", "actuator_coefficients",
         }
 
     def test_schema_lists_exactly_the_registry(self):
@@ -182,3 +182,25 @@ class TestStructuralFingerprints:
         assert not np.any((demo_plant.poles()[0].imag > 0) & (np.abs(np.abs(demo_plant.poles()[0]) / (2 * np.pi) - 250) < 50))
         table = __import__("ambid.modes", fromlist=["x"]).mode_table(housing)
         assert any(r["kind"] == "foundation" for r in table)
+
+
+class TestActuatorCoefficients:
+    """Force constant and bias current factors move ki and kx as thesis eq. 3.6 says (at the magnetic center)."""
+
+    def test_current_and_position_stiffness_scale(self, demo_machine):
+        from ambid.plant import Plant
+
+        effect = effect_from_config({"name": "actuator_coefficients",
+                                     "parameters": {"force_constant_scale": [1.1, 1.0, 1.0, 1.0, 0.9],
+                                                    "bias_current_scale": [1.0, 1.02, 1.0, 1.0, 1.05]}}, "e", demo_machine)
+        before, after = Plant(demo_machine), Plant(demo_machine.with_effects((effect,)))
+        ki, kx = after.current_stiffness / before.current_stiffness, after.position_stiffness / before.position_stiffness
+        assert ki == pytest.approx([1.1, 1.02, 1.0, 1.0])  # ki ~ k i_b
+        assert kx == pytest.approx([1.1, 1.02**2, 1.0, 1.0])  # kx ~ k i_b^2
+        axial = np.array(after.axial_stiffness) / np.array(before.axial_stiffness)
+        assert axial == pytest.approx([0.9 * 1.05, 0.9 * 1.05**2])
+
+    def test_one_value_per_axis_or_one_for_all(self, demo_machine):
+        with pytest.raises(ConfigError, match="one per axis"):
+            effect_from_config({"name": "actuator_coefficients", "parameters": {"bias_current_scale": [1.0, 1.0]}}, "e",
+                               demo_machine)

@@ -17,7 +17,7 @@ from ambid.excitation import (
     run_stepped_sine,
     settings_from_config,
 )
-from ambid.logs import identification_frame, read_identification_log, write_identification_log
+from ambid.logs import CHANNELS, identification_frame, read_identification_log, validate_identification_log, write_identification_log
 from ambid.rig import RigModel, rig_from_config
 
 from conftest import ROOT
@@ -91,6 +91,24 @@ class TestRun:
         strong_settings = SteppedSineSettings(response_max_m=5e-6, response_min_m=1e-6, amplitude_min_a=0.2, settle_min_s=0.03, measure_min_s=0.02)
         strong, _ = run_stepped_sine(model, plan(["DX"], np.array([10.0]), 0.3), strong_settings, noise=False)
         assert strong[0]["amplitude_a"] == 0.2 and not strong[0]["in_band"] and strong[0]["attempts"] == 3  # 0.3, 0.24, 0.2
+
+    def test_repeats_at_a_lower_level(self, demo_quiet):
+        """Every other step measured again at half its accepted amplitude, at the same frequency, as log level 1."""
+        f = np.array([40.0, 120.0, 333.0, 500.0])
+        settings = SteppedSineSettings(settle_min_s=0.03, settle_max_s=0.1, measure_min_s=0.02, repeat_ratio=0.5, repeat_every=2)
+        records, _ = run_stepped_sine(demo_quiet, plan(["DX"], f, 0.5), settings, noise=False)
+        base = [r for r in records if r["level"] == 0]
+        repeats = [r for r in records if r["level"] == 1]
+        assert [r["step"] for r in base] == [0, 1, 2, 3] and [r["step"] for r in repeats] == [0, 2]
+        for repeat in repeats:
+            accepted = base[repeat["step"]]
+            assert repeat["frequency_hz"] == accepted["frequency_hz"]
+            assert repeat["amplitude_a"] == pytest.approx(0.5 * accepted["amplitude_a"])
+            u = CHANNELS.index("U2_DX")
+            assert abs(repeat["coefficients"][u]) == pytest.approx(0.5 * abs(accepted["coefficients"][u]), rel=0.02)
+        validate_identification_log(identification_frame(records), "repeats")
+        with pytest.raises(ConfigError, match="repeat_ratio"):
+            SteppedSineSettings(repeat_ratio=1.5)
 
     def test_batch_equals_single_steps(self, demo_quiet):
         f = np.array([40.0, 120.0, 333.0])

@@ -85,3 +85,26 @@ class TestEstimators:
         f, values, std = channel(table, "mimo", "NX", "DX")
         assert_allclose(values, mimo[1][:, 2, 0])
         assert np.all(std >= 0)
+
+
+def test_logs_with_each_bearings_channels_only():
+    """Radial steps with the 16 radial channels, Z steps with the 4 axial ones: every FRF the log supports, no other."""
+    from ambid.frf import current_etfe
+    from ambid.logs import CHANNELS, axis_channels, identification_frame
+
+    rng = np.random.default_rng(4)
+    steps = []
+    for axis in ("DX", "DY", "NX", "NY", "Z"):
+        own = list(axis_channels(axis))
+        for k in range(5):
+            coefficients = 1e-3 * (rng.standard_normal(len(own)) + 1j * rng.standard_normal(len(own)))
+            coefficients[own.index(f"U2_{axis}")] = 1.0
+            steps.append({"excited_axis": axis, "step": k, "frequency_hz": 10.0 + k, "amplitude_a": 1.0, "attempts": 1,
+                          "channels": own, "coefficients": coefficients, "noise_std": np.full(len(own), 1e-5)})
+    arrays = log_arrays(identification_frame(steps))
+    assert np.isnan(arrays["DX"][1][:, CHANNELS.index("V2_Z")]).all()
+    siso = siso_etfe(arrays)
+    assert ("Z", "DX") not in siso and ("DX", "Z") not in siso and ("NY", "DX") in siso and ("Z", "Z") in siso
+    table = frf_table(siso, mimo_etfe(arrays), current=current_etfe(arrays))
+    assert np.isfinite(table[["re", "im", "std"]].to_numpy()).all()
+    assert set(table["estimator"]) == {"siso", "mimo", "current"} and len(table) == 5 * (17 + 16 + 5)

@@ -7,7 +7,12 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from ambid.errors import AmbidError, LogError
 from ambid.logs import (
+    AXIAL_CHANNELS,
     CHANNELS,
+    OPTIONAL_COLUMNS,
+    RADIAL_CHANNELS,
+    axis_channels,
+    scatter_std,
     channel_unit,
     identification_frame,
     noise_from_scatter,
@@ -63,12 +68,12 @@ def test_channels_and_units():
 
 
 def test_frame_shape_order_and_dtypes(frame, steps):
-    assert list(frame.columns) == COLUMNS
-    assert frame.shape == (2 * N_STEPS * 20, 9)
+    assert list(frame.columns) == list(COLUMNS) + list(OPTIONAL_COLUMNS)
+    assert frame.shape == (2 * N_STEPS * 20, 10)
     assert list(frame["excited_axis"].iloc[::20]) == ["DX"] * N_STEPS + ["DY"] * N_STEPS
     assert_array_equal(frame["step"].iloc[::20], list(range(N_STEPS)) * 2)
     assert list(frame["channel"]) == list(CHANNELS) * 2 * N_STEPS
-    for name in ("step", "attempts"):
+    for name in ("step", "attempts", "level"):
         assert frame[name].dtype == np.int64
     for name in ("frequency_hz", "amplitude_a", "re", "im", "noise_std"):
         assert frame[name].dtype == np.float64
@@ -99,7 +104,7 @@ def test_round_trip(frame, tmp_path):
     path = tmp_path / "identification.parquet"
     write_identification_log(frame, path, {"machine": "demo20", "run": "r1", "seed": 7, "settings": {"cycles": 20}})
     back, info = read_identification_log(path)
-    assert list(back.columns) == COLUMNS
+    assert list(back.columns) == list(COLUMNS) + list(OPTIONAL_COLUMNS)
     assert_array_equal(back["excited_axis"], frame["excited_axis"])
     assert_array_equal(back["channel"], frame["channel"])
     for name in COLUMNS[1:4] + COLUMNS[5:]:
@@ -269,3 +274,74 @@ def test_categorical_columns_are_read_as_their_values(frame, tmp_path):
     back, _ = read_identification_log(path)
     assert not any(isinstance(back[c].dtype, pd.CategoricalDtype) for c in back.columns)
     assert_array_equal(back["excited_axis"].to_numpy(dtype=object), frame["excited_axis"].to_numpy(dtype=object))
+
+
+def own_bearing_only(frame):
+    """Each step with its own bearing's channels only (radial steps 16, axial steps 4)."""
+    radial = frame["excited_axis"] != "Z"
+    return frame[radial == ~frame["channel"].str.endswith("_Z")].reset_index(drop=True)
+
+
+class TestPartialChannelSets:
+    """Logs whose steps carry only the channels of their bearing (radial steps the 16 radial, Z steps the 4 axial)."""
+
+    def test_channel_groups(self):
+        assert len(RADIAL_CHANNELS) == 16 and len(AXIAL_CHANNELS) == 4
+        assert set(RADIAL_CHANNELS) | set(AXIAL_CHANNELS) == set(CHANNELS)
+        assert axis_channels("NY") == RADIAL_CHANNELS and axis_channels("Z") == AXIAL_CHANNELS
+
+    def test_own_bearing_only_is_valid_and_round_trips(self, tmp_path):
+        frame = own_bearing_only(identification_frame(make_steps(axes=ALL_AXES)))
+        validate_identification_log(frame, "partial")
+        write_identification_log(frame, tmp_path / "log.parquet")
+        back, _ = read_identification_log(tmp_path / "log.parquet")
+        pd.testing.assert_frame_equal(back, frame)
+
+    def test_records_with_channel_subsets(self):
+        steps = [{**s, "channels": CHANNELS[::-1], "coefficients": s["coefficients"][::-1], "noise_std": s["noise_std"][::-1]}
+                 for s in make_steps()]
+        pd.testing.assert_frame_equal(identification_frame(steps), identification_frame(make_steps()))
+
+    @pytest.mark.parametrize(
+        "drop, message",
+        [
+            (lambda f: (f["excited_axis"] == "Z") & (f["channel"] == "V2_Z") & (f["step"] == 2),
+             r"excited_axis=Z, step=2\): missing channel\(s\) V2_Z \(a step exciting Z carries the 4 axial channels"),
+            (lambda f: (f["excited_axis"] == "DX") & (f["channel"] == "I_lower_Z") & (f["step"] == 1),
+             r"excited_axis=DX, step=1\): missing channel\(s\) I_lower_Z \(the other bearing's channels are optional, but all"),
+            (lambda f: (f["excited_axis"] == "DY") & f["channel"].str.endswith("_Z") & (f["step"] == 3),
+             r"excited_axis=DY, step=3\): carries other channels than step 0 of DY \(differing: U2_Z, V2_Z, I_upper_Z, "
+             r"I_lower_Z\)"),
+        ],
+    )
+    def test_incomplete_sets_are_refused(self, drop, message):
+        frame = identification_frame(make_steps(axes=("DX", "DY", "Z")))
+        with pytest.raises(LogError, match=message):
+            validate_identification_log(frame[~drop(frame)].reset_index(drop=True), "run.parquet")
+
+    def test_noise_from_scatter_names_only_really_constant_channels(self):
+        """Zero padding of the other bearing's channels is constant on one axis only: not an error; a channel constant
+        on every axis is, and the message names it alone, with the file given."""
+        steps = make_steps(axes=("DX", "Z"), n_steps=6)
+        for s in steps:
+            own = np.isin(CHANNELS, axis_channels(s["excited_axis"]))
+            s["coefficients"] = np.where(own, s["coefficients"], 0)  # padded
+        frame = identification_frame(steps)
+        estimated = noise_from_scatter(frame, "user.m").groupby("channel")["noise_std"].first()
+        assert (estimated > 0).all() and len(estimated) == 20
+        frame.loc[frame["channel"] == "I_upper_NX", ["re", "im"]] = 0.25  # stuck on every axis
+        with pytest.raises(LogError, match=r"^user\.m: channel\(s\) I_upper_NX do not scatter at all on any excited axis"):
+            noise_from_scatter(frame, "user.m")
+
+
+def test_scatter_std_of_white_noise_and_its_running_form():
+    rng = np.random.default_rng(2)
+    n = 4000
+    sigma = np.where(np.arange(n) < n // 2, 1.0, 3.0)
+    noise = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n)) / np.sqrt(2)
+    smooth = 50 * np.exp(2j * np.pi * np.arange(n) / n)
+    assert scatter_std(noise[: n // 2] + smooth[: n // 2]) == pytest.approx(1.0, rel=0.05)
+    local = scatter_std(noise + smooth, window=301)
+    assert local.shape == (n,)
+    assert np.median(local[:1000]) == pytest.approx(1.0, rel=0.1) and np.median(local[-1000:]) == pytest.approx(3.0, rel=0.1)
+    assert_allclose(scatter_std(np.arange(5.0) * (1 + 1j), window=3), 0.0)

@@ -18,6 +18,8 @@ from ambid.errors import AmbidError, LogError
 from ambid.logs import CHANNELS, channel_unit, identification_frame
 from ambid.machine import ALL_AXES
 from ambid.mfile import (
+    AXIAL_COLUMNS,
+    RADIAL_COLUMNS,
     THESIS_COLUMNS,
     MFileParseError,
     _complex,
@@ -307,7 +309,11 @@ def thesis_row(frequency, amplitude, n_values=20, imaginary="0.5"):
 def test_read_rejects_wrong_width(tmp_path):
     path = tmp_path / "narrow.m"
     path.write_text("% 21 columns\ndata_exc_dy = [\n  " + thesis_row("5", "0.1", n_values=19) + "\n];\n")
-    with pytest.raises(MFileParseError, match=r"narrow\.m:3:3: data_exc_dy has 21 columns, the thesis layout has 22"):
+    with pytest.raises(MFileParseError, match=r"narrow\.m:3:3: data_exc_dy has 21 columns; the thesis layout has 22 "
+                                              r"\(all channels\), the radial-only layout has 18"):
+        read_thesis_m(path)
+    path.write_text("data_exc_z = [\n  " + thesis_row("5", "0.1", n_values=16) + "\n];\n")  # 18 columns: radial only
+    with pytest.raises(MFileParseError, match=r"narrow\.m:2:3: data_exc_z has 18 columns; .* the axial-only layout has 6"):
         read_thesis_m(path)
 
 
@@ -530,3 +536,58 @@ def test_an_oversized_line_is_refused_without_reading_the_file(tmp_path, monkeyp
     with pytest.raises(MFileParseError, match=r"identification.m:1:65537: line longer than 65536 bytes"):
         read_thesis_m(path)
     assert sum(read) <= 2 * mfile.MAX_LINE_BYTES  # 128 KiB of the 20 MB
+
+
+def own_channels_only(frame):
+    """The log as the 18 + 6 column layout holds it: each step its own bearing's channels."""
+    radial = frame["excited_axis"] != "Z"
+    return frame[radial == ~frame["channel"].str.endswith("_Z")].reset_index(drop=True)
+
+
+def test_radial_and_axial_layout_round_trips(tmp_path):
+    """The 18-column radial + 6-column axial layout: written for a partial log, read back exactly."""
+    frame = own_channels_only(make_frame(axes=("DX", "NY", "Z")))
+    path = tmp_path / "split.m"
+    write_thesis_m(frame, path)
+    text = path.read_text()
+    matrices = read_m(text)
+    assert {len(row) for row in matrices["data_exc_dx"]} == {18} and {len(row) for row in matrices["data_exc_z"]} == {6}
+    assert "columns of data_exc_z (axial bearing only): 1 frequency [Hz], 2 amplitude [A], 3 U2_Z [A], 4 V2_Z [um]" in text
+    assert len(RADIAL_COLUMNS) == 18 and RADIAL_COLUMNS[6] == "V2_DX [um]" and AXIAL_COLUMNS[-1] == "I_lower_Z [A]"
+    back = read_thesis_m(path)
+    assert len(back) == 2 * N_STEPS * 16 + N_STEPS * 4
+    assert_allclose(back[["re", "im"]].to_numpy(), frame[["re", "im"]].to_numpy(), rtol=1e-15, atol=0)  # um: 2 roundings
+    assert list(back["channel"]) == list(frame["channel"])
+
+
+def test_both_layouts_in_one_file(tmp_path):
+    """A full 22-column radial matrix next to a 6-column Z matrix: each matrix's width tells its layout."""
+    full = make_frame(axes=("DX",))
+    axial = own_channels_only(make_frame(axes=("Z",)))
+    path = tmp_path / "mixed.m"
+    write_thesis_m(full, tmp_path / "dx.m")
+    write_thesis_m(axial, tmp_path / "z.m")
+    body = lambda name: (tmp_path / name).read_text().split("\n", 2)[-1]  # noqa: E731 (drop the columns comment)
+    path.write_text(body("dx.m") + body("z.m"))
+    back = read_thesis_m(path)
+    assert back.groupby("excited_axis")["channel"].nunique().to_dict() == {"DX": 20, "Z": 4}
+
+
+def test_zero_padding_of_the_other_bearing_is_left_out(tmp_path):
+    """A user who padded the axial channels of radial steps (and vice versa) with 0 to reach 22 columns."""
+    frame = own_channels_only(make_frame(axes=("DX", "Z")))
+    padded = frame.copy()
+    missing = []
+    for (axis, step), part in frame.groupby(["excited_axis", "step"]):
+        for channel in sorted(set(CHANNELS) - set(part["channel"])):
+            missing.append({**part.iloc[0].to_dict(), "channel": channel, "re": 0.0, "im": 0.0})
+    padded = pd.concat([padded, pd.DataFrame(missing)], ignore_index=True)
+    padded = padded.assign(order=padded["channel"].map(CHANNELS.index)).sort_values(["excited_axis", "step", "order"])
+    path = tmp_path / "padded.m"
+    write_thesis_m(padded.drop(columns="order"), path)
+    assert {len(row) for rows in read_m(path.read_text()).values() for row in rows} == {22}
+    notes = []
+    back = read_thesis_m(path, notes=notes)
+    assert back.groupby("excited_axis")["channel"].nunique().to_dict() == {"DX": 16, "Z": 4}
+    assert notes == ["data_exc_dx: the other bearing's 4 columns are 0 on every step (padding): left out",
+                     "data_exc_z: the other bearing's 16 columns are 0 on every step (padding): left out"]

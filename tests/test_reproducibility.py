@@ -66,8 +66,8 @@ def test_second_run_does_nothing_and_a_model_change_reruns_only_downstream(two_r
     assert not {"acquire_calibration", "acquire_identification"} & set(jobs), jobs
     # everything that reads the machine file (the log's check against the model, and the FRF made only of a log that
     # passed it), and what follows from it
-    assert set(jobs) == {"plausibility", "frf", "calibrate", "calibration_sensitivity", "fit", "update", "variant",
-                         "model", "compare", "diagnose", "ledger", "report", "all"}, jobs
+    assert set(jobs) == {"plausibility", "frf", "calibrate", "calibration_sensitivity", "fit", "export", "update",
+                         "variant", "model", "compare", "diagnose", "ledger", "report", "all"}, jobs
 
 
 def test_the_report_covers_every_stage_with_thesis_references(two_runs):
@@ -79,7 +79,7 @@ def test_the_report_covers_every_stage_with_thesis_references(two_runs):
         assert reference in page, reference
     figures = page.count('src="data:image/png;base64,')
     assert figures >= 20 and "http" not in page.split("<body>", 1)[1]  # embedded, nothing fetched
-    assert "Missing: <code>" in page or "Nothing significant" in page  # the diagnoses, rendered
+    assert "<strong>Missing" in page or "Nothing is missing at the floor" in page or "Unexplained misfit" in page  # rendered
     # where the log and the fit are quoted: the checks against the model and the findings (none on this run)
     assert "The log against the nominal model" in page and "Findings of the log of run <code>ident01</code>" in page
     assert "Findings of the fit of run <code>ident01</code>" in page

@@ -66,8 +66,11 @@ class TestLinearPart:
         "tau, band_hz, tolerance",
         [
             (50e-6, 2000.0, 1e-7),  # a whole cycle: exactly z^-1
-            (30e-6, 750.0, 2e-4),  # fractional: the continuous output delayed, then sampled;
-            (55e-6, 750.0, 2e-4),  # differs from exp(-jw tau) by O((w T)^2) through the ZOH staircase
+            # fractional: the continuous output delayed, then sampled; differs from exp(-jw tau) by O((w T)^2) through
+            # the ZOH staircase, times the plant's content above the Nyquist frequency (its retained modes up to 23 kHz
+            # and the static-correction vectors at 32-34 kHz of `Rotor.planar_modes`: 2.5e-4 at 750 Hz)
+            (30e-6, 750.0, 3e-4),
+            (55e-6, 750.0, 3e-4),
         ],
     )
     def test_delay_in_the_sampled_response(self, demo_config, tau, band_hz, tolerance):
@@ -120,7 +123,7 @@ class TestConfig:
 def test_model_side_never_reads_the_rig():
     """Only the rig module, the procedures that drive a rig they are handed, the virtual experiments of the
     diagnosis suite and the acquisition scripts."""
-    allowed = {"rig.py", "excitation.py", "calibration.py", "experiment.py", "acquire_identification.py",
+    allowed = {"rig.py", "rig_effects.py", "excitation.py", "calibration.py", "experiment.py", "acquire_identification.py",
                "acquire_calibration.py", "calibration_sensitivity.py"}
     for path in list((ROOT / "workflow" / "ambid").glob("*.py")) + list((ROOT / "workflow" / "scripts").glob("*.py")):
         text = path.read_text()
@@ -129,5 +132,7 @@ def test_model_side_never_reads_the_rig():
         assert "config/rigs" not in text and "from .rig" not in text and "ambid.rig" not in text, path.name
     for path in (ROOT / "workflow" / "ambid").glob("*.py"):
         assert "from .experiment" not in path.read_text(), path.name
+        if path.name not in allowed:  # the physics outside the library is the rig's alone
+            assert "rig_effects" not in path.read_text(), path.name
     for rules in ("model.smk", "calibrate.smk", "frf.smk", "fit.smk", "update.smk", "diagnose.smk", "report.smk"):
         assert "rig" not in (ROOT / "rules" / rules).read_text()

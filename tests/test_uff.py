@@ -31,7 +31,7 @@ def test_round_trip(tmp_path):
     f = np.linspace(1.0, 750.0, 250)
     values = 1e-4 / (1 + 1j * f / 300.0) * np.exp(-1j * f / 100)
     path = tmp_path / "frf.uff"
-    write_uff58(path, [("NX", "DX", f, values), ("Z", "Z", f[:10], values[:10])])
+    write_uff58(path, [("mimo", "NX", "DX", f, values), ("siso", "Z", "Z", f[:10], values[:10])])
     datasets = read_uff58(path)
     assert [(d[0], d[1], d[2], d[3], d[4], d[5]) for d in datasets] == [("NX", 2, 1, "DX", 1, 1), ("Z", 3, 3, "Z", 3, 3)]
     assert_allclose(datasets[0][6], f, rtol=1e-5)
@@ -40,8 +40,10 @@ def test_round_trip(tmp_path):
 
 
 def test_non_finite_is_refused(tmp_path):
-    with pytest.raises(ValueError, match="DX/DX"):
-        write_uff58(tmp_path / "x.uff", [("DX", "DX", [1.0], [np.nan])])
+    with pytest.raises(ValueError, match="siso DX/DX"):
+        write_uff58(tmp_path / "x.uff", [("siso", "DX", "DX", [1.0], [np.nan])])
+    with pytest.raises(ValueError, match="unknown estimator 'bla'"):
+        write_uff58(tmp_path / "x.uff", [("bla", "DX", "DX", [1.0], [1.0])])
     assert not (tmp_path / "x.uff").exists()
 
 

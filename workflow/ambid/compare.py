@@ -6,10 +6,10 @@ only SISO runs exist), the axial plant and the coil-current responses
 ``I_<axis>`` (commanded -> measured coil current, the amplifier alone).
 
 For every channel ``G_meas(f)`` with standard uncertainty ``sigma(f)`` (the
-complex standard deviation of the ETFE, ``E|n|^2 = sigma^2``, inflated by a
-relative floor for what the noise does not cover: the stepped sine's amplitude
-nonlinearity and the sampled-data approximation, ``sqrt(sigma^2 + (floor
-|G_meas|)^2)``) and the model's ``G_model(f)`` (`model_response`: structural
+complex standard deviation of the ETFE's noise, ``E|n|^2 = sigma^2``, combined
+with the systematic error the FRF stage measured from the data,
+``sqrt(std^2 + systematic_std^2)``: the stepped sine's amplitude nonlinearity,
+`ambid.floor`) and the model's ``G_model(f)`` (`model_response`: structural
 plant with its effects times the digital loop's zero-order hold, as the
 measurement sees it):
 
@@ -23,20 +23,22 @@ The summary per channel and band is ``chi2 = mean(normalized_error^2)``
 magnitude and phase errors.  This is the "compare" step of the diagnosis loop.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
 from .effects import COIL_CURRENT_EFFECTS, series_state_space
 from .errors import AmbidError
+from .floor import band_labels, frequency_bands
 from .frf import channel
 from .loop import zero_order_hold
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
-from .plant import zoh_discretize
+from .findings import Finding
+from .plant import Plant, zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "DEFAULT_BANDS_HZ"]
-
-DEFAULT_BANDS_HZ = (0.0, 10.0, 100.0, 300.0, 1000.0, np.inf)
+           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes"]
 
 
 class CompareError(AmbidError):
@@ -48,20 +50,23 @@ def current_channel(axis):
     return f"I_{axis}"
 
 
+def channel_family(output):
+    """Family of a compared channel by its output: ``currents`` (``I_<axis>``), ``axial`` (``Z``) or ``positions``."""
+    return "currents" if output.startswith("I_") else "axial" if output == AXIAL_AXIS else "positions"
+
+
 def measured_channels(table, position_floor=0.0, current_floor=0.0):
     """Every logged channel of an FRF table, with the uncertainty the comparison uses.
 
     Parameters
     ----------
     table : pandas.DataFrame
-        `ambid.frf.frf_table` of one run.
+        `ambid.frf.frf_table` of one run; its ``systematic_std`` (`ambid.floor`)
+        is added in quadrature to the noise ``std``.
     position_floor, current_floor : float
-        Systematic relative uncertainty added in quadrature to the ETFE's noise
-        of the position (plant) and coil-current channels.  The plant's covers
-        the force law's nonlinearity at the stepped sine's amplitudes and the
-        sampled-data approximation of `model_response` (about 1-2 %, measured on
-        a rig whose model is exact); the coil currents are linear and modelled
-        exactly, so theirs can be ten times smaller.
+        Relative systematic uncertainty of the position (plant) and coil-current
+        channels for rows whose ``systematic_std`` is NaN or absent (a table made
+        without `ambid.floor`, e.g. in a study); the FRF stage fills every row.
 
     Returns
     -------
@@ -79,10 +84,11 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
     wanted = [row for row in wanted if row in logged]
     out = {}
     for estimator, output, input_axis in wanted:
-        frequency, values, std = channel(table, estimator, output, input_axis)
+        frequency, values, std, systematic = channel(table, estimator, output, input_axis, systematic=True)
         key = (current_channel(output) if estimator == "current" else output, input_axis)
         floor = current_floor if estimator == "current" else position_floor
-        out[key] = (frequency, values, np.hypot(std, floor * np.abs(values)))
+        systematic = np.where(np.isfinite(systematic), systematic, floor * np.abs(values))
+        out[key] = (frequency, values, np.hypot(std, systematic))
     if not out:
         raise CompareError("the FRF table holds no channel to compare")
     return out
@@ -93,8 +99,8 @@ def model_response(plant, channels):
 
     Positions: the plant's FRF times the zero-order hold (`model_channels`).  Coil
     currents: the amplifier chain of the axis (the `COIL_CURRENT_EFFECTS`)
-    discretized exactly with the hold, as the rig's sampled current sees the
-    commanded one; 1 without one.
+    discretized exactly with the hold and sampled at the start of the cycle
+    (`_sampled_chain`); one cycle's delay without one.
 
     Parameters
     ----------
@@ -121,14 +127,26 @@ def model_response(plant, channels):
 
 
 def _sampled_coil_current(plant, axis, frequency_hz):
-    a, b, c, d = series_state_space([e.siso_state_space() for e in plant.input_effects
-                                     if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)])
+    chain = [e for e in plant.input_effects if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)]
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    return plant.cached(("coil", repr(chain), frequency_hz.tobytes()),
+                        lambda: _sampled_chain(chain, plant.machine.sample_time_s, frequency_hz))
+
+
+def _sampled_chain(chain, sample_time_s, frequency_hz):
+    """The coil current sampled at the start of a cycle against the command U2: ``C (zI - Phi)^-1 Gamma + D / z``.
+
+    The amplifier chain discretized exactly with the hold; its direct term sees the
+    command of the cycle before (the PLC samples before it outputs), so an ideal
+    amplifier is one cycle behind, the limit of a fast one.
+    """
+    a, b, c, d = series_state_space([e.siso_state_space() for e in chain])
+    z = np.exp(2j * np.pi * frequency_hz * sample_time_s)
     if a.shape[0] == 0:
-        return np.full(len(frequency_hz), complex(d[0, 0]))
-    transition, gamma = zoh_discretize(a, b, plant.machine.sample_time_s)
-    z = np.exp(2j * np.pi * np.asarray(frequency_hz) * plant.machine.sample_time_s)
+        return d[0, 0] / z
+    transition, gamma = zoh_discretize(a, b, sample_time_s)
     resolvent = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - transition, gamma.astype(complex))
-    return (c @ resolvent)[:, 0, 0] + d[0, 0]
+    return (c @ resolvent)[:, 0, 0] + d[0, 0] / z
 
 
 def model_channels(plant, frequency_hz, channels):
@@ -137,6 +155,92 @@ def model_channels(plant, frequency_hz, channels):
     response = plant.radial_frequency_response(frequency_hz) * zero_order_hold(frequency_hz,
                                                                                 plant.machine.sample_time_s)[:, None, None]
     return {(o, i): response[:, RADIAL_AXES.index(o), RADIAL_AXES.index(i)] for o, i in channels}
+
+
+def truncation_error(machine, measured, retained_modes, reference):
+    """Largest error of the radial channels with ``retained_modes`` modes against ``reference``, in units of sigma.
+
+    The modal model keeps the lowest ``retained_modes`` free-free modes per plane
+    (thesis eq. 2.10); the modes it drops still bend the response below their
+    frequencies (most near anti-resonances, which are set by every mode).  The
+    error is ``max |G_n - G_ref| / sigma`` over the measured radial points, and
+    the point where it is largest.
+
+    Returns
+    -------
+    error : float
+        In units of the measurement's uncertainty.
+    magnitude_db, phase_deg, frequency_hz : float
+        The model-to-model difference at that point.
+    """
+    radial = {key: value for key, value in measured.items() if key[0] in RADIAL_AXES}
+    if not radial:
+        return 0.0, 0.0, 0.0, 0.0
+    reduced = model_response(Plant(replace(machine, retained_modes=retained_modes)), radial)
+    full = reference if isinstance(reference, dict) else model_response(Plant(replace(machine, retained_modes=reference)), radial)
+    worst = (0.0, 0.0, 0.0, 0.0)
+    for key, (frequency, _, std) in radial.items():
+        difference = np.abs(reduced[key] - full[key]) / std
+        k = int(np.argmax(difference))
+        if difference[k] > worst[0]:
+            ratio = reduced[key][k] / full[key][k] if full[key][k] != 0 else 1.0
+            worst = (float(difference[k]), float(20 * np.log10(abs(ratio))), float(np.degrees(np.angle(ratio))), float(frequency[k]))
+    return worst
+
+
+def enough_modes(machine, measured, tolerance=0.1, most=80):
+    """The retained modes that keep the truncation error below ``tolerance`` times the floor on every measured point.
+
+    Starting from the machine's own ``retained_modes`` and growing by half each
+    time, against a reference of ``most`` modes (or all the rotor has).
+
+    Returns
+    -------
+    modes : int
+        The number to use (the machine's own when it is enough).
+    own_error : tuple
+        `truncation_error` of the machine's own number.
+    error : tuple
+        `truncation_error` of ``modes`` (above ``tolerance`` only when even ``most`` modes are not enough).
+    """
+    available = 2 * machine.rotor.n_nodes
+    most = min(most, available)
+    own = machine.retained_modes
+    if own >= most:
+        return own, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
+    radial = {key: value for key, value in measured.items() if key[0] in RADIAL_AXES}
+    reference = model_response(Plant(replace(machine, retained_modes=most)), radial)
+    own_error = truncation_error(machine, measured, own, reference)
+    modes, error = own, own_error
+    while error[0] > tolerance and modes < most:
+        modes = min(most, int(np.ceil(1.5 * modes)))
+        error = truncation_error(machine, measured, modes, reference) if modes < most else (0.0, 0.0, 0.0, 0.0)
+    return modes, own_error, error
+
+
+def with_enough_modes(machine, measured, stage, tolerance=0.1):
+    """The machine with enough retained modes for this measurement (`enough_modes`), and what the user must know.
+
+    Returns
+    -------
+    machine : ambid.machine.Machine
+    findings : list of ambid.findings.Finding
+        A warning when the machine's own ``rotor.retained_modes`` leaves a
+        truncation error above the tolerance (and the number used instead), or
+        when even the most modes tried do not reach it.
+    """
+    modes, own, error = enough_modes(machine, measured, tolerance)
+    findings = []
+    if modes != machine.retained_modes:
+        findings.append(Finding(stage, "warning", "truncation", "rotor.retained_modes",
+                                f"{machine.retained_modes} retained modes leave a truncation error of {own[0]:.3g} times the "
+                                f"measurement's uncertainty ({own[1]:+.2f} dB, {own[2]:+.2f} deg near {own[3]:.0f} Hz); this "
+                                f"stage used {modes}: set rotor.retained_modes: {modes} in the machine file", own[0]))
+    if error[0] > tolerance:
+        findings.append(Finding(stage, "warning", "truncation", "rotor.retained_modes",
+                                f"even {modes} modes leave a truncation error of {error[0]:.3g} times the uncertainty "
+                                f"({error[1]:+.2f} dB near {error[3]:.0f} Hz)", error[0]))
+    return replace(machine, retained_modes=modes), findings
 
 
 def channel_errors(measured, model):
@@ -173,16 +277,34 @@ def channel_errors(measured, model):
     return pd.concat(rows, ignore_index=True)
 
 
-def summarize(errors, bands_hz=DEFAULT_BANDS_HZ):
+def summarize(errors, bands_hz=None):
     """One row per channel and band, per channel (band ``all``) and overall (channel ``all``).
 
-    Columns ``output, input, band, points, chi2, excess, rms_magnitude_db, rms_phase_deg``;
-    ``chi2`` is the mean squared normalized error (1: within the noise),
-    ``excess = max(chi2 - 1, 0)``.
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        `channel_errors`.
+    bands_hz : sequence, optional
+        Band edges (the last may be ``inf``); default: per channel family, bands
+        derived from the measured grid (`ambid.floor.frequency_bands`), so no band
+        lies outside the data or holds a handful of points.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``output, input, band, points, chi2, excess, rms_magnitude_db, rms_phase_deg``;
+        ``chi2`` is the mean squared normalized error (1: at the floor), ``excess = max(chi2 - 1, 0)``.
     """
-    edges = np.asarray(bands_hz, dtype=float)
-    labels = [f"{lo:g}-{hi:g} Hz" for lo, hi in zip(edges[:-1], edges[1:])]
-    frame = errors.assign(band=pd.cut(errors["frequency_hz"], edges, labels=labels, right=False).astype(str))
+    band = np.empty(len(errors), dtype=object)
+    families = errors["output"].map(channel_family).to_numpy()
+    for family in np.unique(families):
+        rows = families == family
+        frequency = errors["frequency_hz"].to_numpy()[rows]
+        edges = np.asarray(bands_hz, dtype=float) if bands_hz is not None else frequency_bands(frequency)
+        labels = band_labels(edges)
+        index = np.clip(np.searchsorted(edges, frequency, side="right") - 1, 0, len(labels) - 1)
+        band[rows] = np.asarray(labels, dtype=object)[index]
+    frame = errors.assign(band=band)
 
     def row(group, output, input_axis, band):
         chi2 = float(np.mean(group["normalized_error"] ** 2))

@@ -1,44 +1,68 @@
-"""Which physical effect does the model lack?  Fit each candidate on top of the model, rank by evidence.
+"""Which physical effect does the model lack?  Fit each candidate on top of the model, select, refit jointly.
 
 The measurement is every logged channel (`ambid.compare.measured_channels`):
 radial plant matrix, axial plant and coil currents, each with its uncertainty
-``sigma`` (noise plus a relative floor).  For a model with response ``G(f)``
-the misfit is ``chi2 = sum |G - G_meas|^2 / sigma^2`` over the ``N`` complex
-points (``E chi2 = N`` at the noise floor; the *excess* is ``chi2 / N - 1``).
+``sigma`` (noise and the systematic floor the FRF stage measured, `ambid.floor`).
+For a model with response ``G(f)`` the misfit is ``chi2 = sum |G - G_meas|^2 /
+sigma^2`` over the ``N`` complex points (``E chi2 = N`` at the floor).
 
-For each candidate of the effect library (`candidate_space`), its few
-parameters are fitted on top of the current model: a scan of the leading
-parameter over its physical range, then bounded least squares on all of them.
-Candidates are ranked by the Bayesian information criterion of the complex
-Gaussian likelihood, ``BIC = 2 chi2 / c + k ln(2N)``: ``k`` fitted parameters,
-``2N`` real data, and ``c >= 1`` the overdispersion (``chi2 / (N - k)`` of the
-best candidate), so that a floor set too low does not make every
-candidate "significant".  The *evidence* of a candidate is its BIC drop
-against the model as it is; it is significant above `INDISTINGUISHABLE_BIC`,
-and two
-candidates whose evidence differs by less than `INDISTINGUISHABLE_BIC`
-(Kass & Raftery's "very strong" threshold) are reported as indistinguishable
-in the measured band: both are named.
+**Cells.**  The misfit is also read per channel family (positions, axial, coil
+currents) and frequency band (`ambid.floor.frequency_bands` of the measured
+grid): a cell is *above the floor* when its ``chi2`` per point exceeds
+``max(limit, 1 + 3 / sqrt(n))`` (``limit`` 1.5: the band the true model keeps on
+a rig whose floor is measured).  Where no cell is above the floor, nothing is
+missing, whatever a candidate would gain from fitting the noise.
+
+**Candidates** (`candidate_space`): each effect of the library, with its few
+parameters over their physical range.  A candidate is fitted on top of the model
+in two stages: a scan of its parameters on a robust objective, the weighted
+complex log ratio ``log(G / G_meas)`` (its minimum has a basin as wide as the
+parameter range: a lightly damped resonance that misses the measured one by more
+than its bandwidth still tells which way to go, where ``chi2`` is flat), local
+least squares on that objective from the best few scan minima, then bounded
+least squares on ``chi2`` from each; the best ``chi2`` wins.
+
+**Significance.**  Candidates are ranked by the Bayesian information criterion
+of the complex Gaussian likelihood, ``BIC = 2 chi2 / c + k ln(2N)`` (``k``
+parameters, ``c >= 1`` the overdispersion ``chi2 / (N - k)`` of the best
+candidate).  A candidate is *missing* when (1) its BIC evidence against the
+model as it is exceeds `INDISTINGUISHABLE_BIC` (Kass & Raftery's "very strong"),
+(2) it removes at least ``min_share`` (10 %) of the excess in the cells above the
+floor, and (3) none of its parameters ends at a search bound (an effect that
+wants more than its physical range allows explains something else).  Candidates
+whose evidence differs by less than `INDISTINGUISHABLE_BIC` are named as
+indistinguishable.
+
+**Selection and joint refit.**  Missing effects are chosen one after the other
+(forward selection); then all chosen effects' parameters and the variant's own
+effects (what earlier diagnoses added, the model update's moduli) are refitted
+together, with a weak prior keeping what the data do not determine at its
+configured value (`joint_refit`), standard deviations and correlations.  What
+misfit then remains above the floor is *unexplained*: the verdict names where it
+lives.
 """
 
-from dataclasses import dataclass, field
+import itertools
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 import scipy.optimize
-import yaml
 
-from .compare import channel_errors, model_response, summarize
-from .effects import EFFECTS, split_effects
+from .compare import channel_family, model_response
+from .effects import EFFECTS
 from .errors import AmbidError, ConfigError, ModelError
-from .machine import RADIAL_AXES
-from .plant import Plant
+from .machine import ALL_AXES
+from .floor import band_labels, frequency_bands
 
-__all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "Diagnosis", "diagnose",
-           "misfit", "plant_with_effect", "where_it_helps", "diagnosis_report", "fingerprint", "effects_config_lines", "INDISTINGUISHABLE_BIC"]
+__all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
+           "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells", "plant_with_effect",
+           "plant_with_effects", "INDISTINGUISHABLE_BIC"]
 
 #: BIC difference below which two candidates explain the data equally well (Kass & Raftery 1995: > 10 is very strong).
 INDISTINGUISHABLE_BIC = 10.0
+#: A parameter this close to a bound (fraction of its search span) has run into it.
+AT_BOUND = 1e-3
 
 
 class DiagnoseError(AmbidError):
@@ -46,20 +70,75 @@ class DiagnoseError(AmbidError):
 
 
 @dataclass(frozen=True)
+class DiagnoseSettings:
+    """Settings of the diagnosis (config ``diagnose``).
+
+    Attributes
+    ----------
+    max_evaluations : int
+        Least-squares evaluations of ``chi2`` per start of a candidate's fit.
+    sequence_length : int
+        Most missing effects chosen one after the other.
+    min_share : float
+        Share of the excess above the floor a missing effect must remove.
+    floor_limit : float
+        ``chi2`` per point above which a cell is above the floor (at least ``1 + 3 / sqrt(n)``).
+    determined_std : float
+        Relative standard deviation below which a parameter counts as determined.
+    prior_width : float
+        Joint refit: standard deviation of the prior on the variant's own parameters, in their search
+        coordinates (1: a factor e on log-scaled parameters).
+    """
+
+    max_evaluations: int = 60
+    sequence_length: int = 6
+    min_share: float = 0.1
+    floor_limit: float = 1.5
+    determined_std: float = 0.1
+    prior_width: float = 1.0
+
+    def __post_init__(self):
+        checks = [("max_evaluations", self.max_evaluations >= 5), ("sequence_length", self.sequence_length >= 1),
+                  ("min_share", 0 <= self.min_share < 1), ("floor_limit", self.floor_limit > 1),
+                  ("determined_std", self.determined_std > 0), ("prior_width", self.prior_width > 0)]
+        for key, ok in checks:
+            if not ok:
+                raise ConfigError(f"diagnose.{key}", f"out of range: {getattr(self, key)}")
+
+
+@dataclass(frozen=True)
 class FreeParameter:
-    """A fitted parameter of a candidate: search range, scale of the search, and the value the scan starts from."""
+    """A fitted parameter: search range, scale, start and scan density.
+
+    ``index`` picks one entry of a per-element parameter (``element_stiffness.scale``
+    of one element) in a joint refit.
+    """
 
     name: str
     lower: float
     upper: float
     log: bool = True
-    start: float | None = None  # None: the scan's best
+    start: float | None = None  # None: the middle of the range (geometric for log parameters)
+    scan: int = 24  # scan points (1: the start only)
+    index: int | None = None
 
     def to_search(self, value):
         return np.log(value) if self.log else value
 
     def from_search(self, value):
         return float(np.exp(value)) if self.log else float(value)
+
+    @property
+    def start_value(self):
+        if self.start is not None:
+            return self.start
+        return float(np.sqrt(self.lower * self.upper)) if self.log else 0.5 * (self.lower + self.upper)
+
+    def grid(self):
+        """The scan's values in search coordinates."""
+        if self.scan <= 1:
+            return np.array([self.to_search(self.start_value)])
+        return np.linspace(self.to_search(self.lower), self.to_search(self.upper), self.scan)
 
 
 @dataclass(frozen=True)
@@ -70,10 +149,17 @@ class Candidate:
     effect: str
     free: tuple
     fixed: dict = field(default_factory=dict)
-    scan_points: int = 12
 
     def build(self, values):
-        return EFFECTS[self.effect](**self.fixed, **{p.name: v for p, v in zip(self.free, values)})
+        """The effect with the free parameters at ``values`` (per-element ones, `FreeParameter.index`, as tuples)."""
+        parameters = {}
+        for p, v in zip(self.free, values):
+            if p.index is None:
+                parameters[p.name] = v
+            else:
+                parameters.setdefault(p.name, {})[p.index] = v
+        parameters = {k: tuple(v[i] for i in sorted(v)) if isinstance(v, dict) else v for k, v in parameters.items()}
+        return EFFECTS[self.effect](**self.fixed, **parameters)
 
 
 def candidate_space(machine):
@@ -82,41 +168,47 @@ def candidate_space(machine):
     Search ranges cover the physical ranges of AMB machines generously:
     amplifier and sensor bandwidths 50 Hz - 100 kHz, eddy-current corners
     50 Hz - 1 MHz, delays 0.1 us - 1 ms, couplings +-20 %, stiffness factors
-    0.05 - 5, added damping ratios up to 0.1, speeds 100 - 200 000 rpm,
+    0.05 - 5, added damping ratios 1e-4 - 0.1, speeds 100 - 200 000 rpm,
     sensor shifts up to 60 mm (kept on the rotor) and housing modes 20 Hz -
-    5 kHz of 0.05 - 50 rotor masses.
+    5 kHz of 0.05 - 50 rotor masses, the bearings' force constant and delivered
+    bias current within 0.7 - 1.4 of the drawing's, per axis.
     """
     rotor = machine.rotor
     mass = rotor.mass_kg
     candidates = [
-        Candidate("amplifier_lowpass", "amplifier_lowpass", (FreeParameter("cutoff_hz", 50.0, 1e5),)),
-        Candidate("eddy_current", "eddy_current", (FreeParameter("corner_hz", 50.0, 1e6),)),
-        Candidate("sensor_lowpass", "sensor_lowpass", (FreeParameter("cutoff_hz", 50.0, 1e5),), {"order": 1.0}),
-        Candidate("delay", "delay", (FreeParameter("delay_s", 1e-7, 1e-3),)),
-        Candidate("cross_coupling[input]", "cross_coupling", (FreeParameter("coefficient", -0.2, 0.2, log=False, start=0.0),),
-                  {"side": "input"}),
-        Candidate("cross_coupling[output]", "cross_coupling", (FreeParameter("coefficient", -0.2, 0.2, log=False, start=0.0),),
-                  {"side": "output"}),
+        Candidate("amplifier_lowpass", "amplifier_lowpass", (FreeParameter("cutoff_hz", 50.0, 1e5, scan=32),)),
+        Candidate("eddy_current", "eddy_current", (FreeParameter("corner_hz", 50.0, 1e6, scan=32),)),
+        Candidate("sensor_lowpass", "sensor_lowpass", (FreeParameter("cutoff_hz", 50.0, 1e5, scan=32),), {"order": 1.0}),
+        Candidate("delay", "delay", (FreeParameter("delay_s", 1e-7, 1e-3, scan=32),)),
+        Candidate("cross_coupling[input]", "cross_coupling",
+                  (FreeParameter("coefficient", -0.2, 0.2, log=False, start=0.0, scan=17),), {"side": "input"}),
+        Candidate("cross_coupling[output]", "cross_coupling",
+                  (FreeParameter("coefficient", -0.2, 0.2, log=False, start=0.0, scan=17),), {"side": "output"}),
     ]
     tags = sorted({tag for element in rotor.elements for tag in element.tags})
-    candidates += [Candidate(f"element_stiffness[{tag}]", "element_stiffness", (FreeParameter("scale", 0.05, 5.0, start=1.0),),
-                             {"tag": tag}) for tag in tags]
+    candidates += [Candidate(f"element_stiffness[{tag}]", "element_stiffness",
+                             (FreeParameter("scale", 0.05, 5.0, start=1.0, scan=32),), {"tag": tag}) for tag in tags]
     candidates += [
-        Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 0.0, 0.1, log=False),)),
-        # the misfit's minimum in speed is a few per cent wide: a fine log scan finds it
-        Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 100.0, 2e5),), scan_points=240),
+        Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 1e-4, 0.1, scan=16),)),
+        Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 100.0, 2e5, scan=48),)),
     ]
     shifts = []
     for bearing, key in (("DE", "de_offset_m"), ("NDE", "nde_offset_m")):
         z = machine.bearing(bearing).sensor_position_m
-        shifts.append(FreeParameter(key, max(-0.06, -z), min(0.06, rotor.length_m - z), log=False, start=0.0))
-    candidates.append(Candidate("noncollocation", "noncollocation", tuple(shifts), scan_points=9))
+        shifts.append(FreeParameter(key, max(-0.06, -z), min(0.06, rotor.length_m - z), log=False, start=0.0, scan=7))
+    candidates.append(Candidate("noncollocation", "noncollocation", tuple(shifts)))
+    # the bearings' ki and kx, axis by axis: small corrections from the drawing, refined from no change
+    candidates.append(Candidate("actuator_coefficients", "actuator_coefficients", tuple(
+        FreeParameter(name, 0.7, 1.4, start=1.0, scan=1, index=k) for name in ("force_constant_scale", "bias_current_scale")
+        for k in range(len(ALL_AXES)))))
     candidates.append(Candidate("foundation_mode", "foundation_mode",
-                                (FreeParameter("frequency_hz", 20.0, 5000.0), FreeParameter("mass_kg", 0.05 * mass, 50 * mass, start=mass),
-                                 FreeParameter("damping_ratio", 1e-3, 0.3, start=0.02)), scan_points=24))
+                                (FreeParameter("frequency_hz", 20.0, 5000.0, scan=32),
+                                 FreeParameter("mass_kg", 0.05 * mass, 50 * mass, start=mass, scan=3),
+                                 FreeParameter("damping_ratio", 1e-3, 0.3, start=0.02, scan=1))))
     return candidates
 
 
+# ------------------------------------------------------------------------------------------ the misfit
 def misfit(measured, predicted):
     """``chi2 = sum |G - G_meas|^2 / sigma^2`` over all points of all channels, and the complex residual vector."""
     for (output, input_axis), (_, _, std) in measured.items():
@@ -129,32 +221,118 @@ def misfit(measured, predicted):
     return float(np.vdot(residual, residual).real), residual
 
 
+class _Cells:
+    """Family x band cells of the measured points, in the order of `misfit`'s residual."""
+
+    def __init__(self, measured, min_points=20):
+        families = {}
+        for key, (frequency, _, _) in measured.items():
+            families.setdefault(channel_family(key[0]), []).append(frequency)
+        self.edges = {family: frequency_bands(np.concatenate(f), min_points) for family, f in families.items()}
+        names, index = [], []
+        for key, (frequency, _, _) in measured.items():
+            family = channel_family(key[0])
+            edges = self.edges[family]
+            labels = band_labels(edges)
+            band = np.clip(np.searchsorted(edges, frequency, side="right") - 1, 0, len(labels) - 1)
+            codes = []
+            for b in band:
+                name = (family, labels[b])
+                if name not in names:
+                    names.append(name)
+                codes.append(names.index(name))
+            index.append(np.array(codes, dtype=int))
+        self.names = names
+        self.index = np.concatenate(index)
+        self.points = np.bincount(self.index, minlength=len(names))
+
+    def chi2(self, residual):
+        """``chi2`` per point of each cell."""
+        return np.bincount(self.index, weights=np.abs(residual) ** 2, minlength=len(self.names)) / self.points
+
+    def above(self, per_point, limit):
+        """Cells above the floor: ``chi2`` per point beyond ``max(limit, 1 + 3 / sqrt(n))``."""
+        return per_point > np.maximum(limit, 1 + 3 / np.sqrt(self.points))
+
+    def excess(self, residual, cells):
+        """Excess over the floor, ``sum n max(chi2 - 1, 0)``, in the given cells (boolean mask)."""
+        return float(np.sum((self.points * np.maximum(self.chi2(residual) - 1.0, 0.0))[cells]))
+
+    def frame(self, residual, limit):
+        per_point = self.chi2(residual)
+        return pd.DataFrame({"family": [n[0] for n in self.names], "band": [n[1] for n in self.names],
+                             "points": self.points, "chi2_per_point": per_point, "above_floor": self.above(per_point, limit)})
+
+
+def misfit_cells(measured, predicted, limit=1.5):
+    """``chi2`` per point of every channel family and band, and whether it is above the floor (`diagnose`)."""
+    _, residual = misfit(measured, predicted)
+    return _Cells(measured).frame(residual, limit)
+
+
+# ------------------------------------------------------------------------------------------ evaluation
 def plant_with_effect(plant, effect):
     """The plant with one more effect: signal effects and speed reuse the modal model, structure effects rebuild it."""
     if effect is None:
         return plant
     if effect.name == "gyroscopic":
         return plant.at_speed(effect.speed_rpm * np.pi / 30)
-    structure, _, _ = split_effects([effect])
-    if structure:
-        return Plant(plant.machine.with_effects(plant.machine.effects + (effect,)))
+    if effect.location == "structure":
+        return plant.with_structure_effect(effect)
     return plant.with_signal_effects([effect])
 
 
-class _Evaluator:
-    """Misfit of the model with one candidate effect added; counts the evaluations."""
+def plant_with_effects(plant, effects):
+    """The plant with several more effects, structure first (signal effects share the last structure)."""
+    ordered = sorted(effects, key=lambda e: e.location != "structure")
+    for effect in ordered:
+        plant = plant_with_effect(plant, effect)
+    return plant
 
-    def __init__(self, machine, measured):
-        self.machine = machine
+
+class _Evaluator:
+    """Residuals of a base plant with effects added; counts the evaluations."""
+
+    def __init__(self, plant, measured, cells):
+        self.plant = plant
         self.measured = measured
-        self.plant = Plant(machine)
+        self.cells = cells
+        self.values = np.concatenate([values for _, values, _ in measured.values()])
+        self.std = np.concatenate([std for _, _, std in measured.values()])
+        self.relative = self.std / np.maximum(np.abs(self.values), 1e-300)
         self.evaluations = 0
 
-    def residual(self, effect):
+    def predicted(self, effects):
         self.evaluations += 1
-        return misfit(self.measured, model_response(plant_with_effect(self.plant, effect), self.measured))
+        response = model_response(plant_with_effects(self.plant, effects), self.measured)
+        return np.concatenate([response[key] for key in self.measured])
+
+    def residual(self, effects):
+        predicted = self.predicted(effects)
+        residual = (predicted - self.values) / self.std
+        if not np.all(np.isfinite(residual)):
+            raise DiagnoseError("the model's response is not finite on the measured frequencies")
+        return residual
+
+    def robust(self, effects, smoothing=0.05):
+        """The robust objective's residual: the complex log ratio of model and measurement, capped weights.
+
+        ``sqrt(w) (log((|G|+s)/(|G_m|+s)) + j g angle(G / G_m))`` with
+        ``w = 1 / (rel^2 + smoothing^2)`` (``rel = s / |G_m|``) and ``g`` fading the phase
+        where either response is within the uncertainty ``s``.
+        """
+        predicted = self.predicted(effects)
+        p, v, s = np.abs(predicted), np.abs(self.values), self.std
+        weight = 1.0 / np.sqrt(self.relative**2 + smoothing**2)
+        magnitude = np.log((p + s) / (v + s))
+        phase = np.angle(predicted * np.conj(self.values)) * (p / (p + s)) * (v / (v + s))
+        out = np.concatenate([weight * magnitude, weight * phase])
+        if not np.all(np.isfinite(out)):
+            raise DiagnoseError("the model's response is not finite on the measured frequencies")
+        return out
 
 
+# ------------------------------------------------------------------------------------------ one candidate
 @dataclass
 class FittedCandidate:
     """A candidate with its fitted parameters and what it does to the misfit."""
@@ -163,8 +341,12 @@ class FittedCandidate:
     values: tuple
     std: tuple
     chi2: float
+    residual: np.ndarray = field(default=None, repr=False)
+    at_bound: tuple = ()  # names of parameters at a search bound
     evidence: float = 0.0  # BIC drop against the model as it is
-    significant: bool = False
+    share: float = 0.0  # of the excess above the floor removed
+    significant: bool = False  # evidence above the threshold
+    missing: bool = False  # significant, material and inside its range
     indistinguishable: tuple = ()
     evaluations: int = 0
 
@@ -173,15 +355,323 @@ class FittedCandidate:
         return self.candidate.build(self.values)
 
 
+def _local_minima(values, shape):
+    """Flat indices of the grid's local minima (no smaller neighbour along any axis), best first."""
+    grid = values.reshape(shape)
+    minimum = np.ones(shape, dtype=bool)
+    for axis in range(len(shape)):
+        if shape[axis] < 2:
+            continue
+        before = np.full(shape, np.inf)
+        after = np.full(shape, np.inf)
+        index = [slice(None)] * len(shape)
+        index[axis] = slice(1, None)
+        before[tuple(index)] = np.take(grid, np.arange(shape[axis] - 1), axis=axis)
+        after[tuple(index[:axis] + [slice(None, -1)] + index[axis + 1:])] = np.take(grid, np.arange(1, shape[axis]), axis=axis)
+        minimum &= (grid <= before) & (grid <= after)
+    flat = np.flatnonzero(minimum.ravel() & np.isfinite(values))
+    return flat[np.argsort(values[flat])]
+
+
+def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2, warm=None):
+    """Fit one candidate on top of ``base`` effects: robust scan, robust refinement, then ``chi2``.
+
+    ``starts``: scan minima refined (a second one only where its robust misfit is
+    within twice the best's).  ``warm``: values of an earlier fit of the same
+    candidate (a later round of the forward selection), refined from there
+    instead of scanning again.
+    """
+    free = candidate.free
+    lower = np.array([p.to_search(p.lower) for p in free])
+    upper = np.array([p.to_search(p.upper) for p in free])
+    span = upper - lower
+    count = evaluator.evaluations
+    points = evaluator.values.size
+
+    def effects(x):
+        effect = candidate.build([p.from_search(v) for p, v in zip(free, x)])
+        effect.check(evaluator.plant.machine)
+        return (*base, effect)
+
+    def robust(x):
+        try:
+            return evaluator.robust(effects(x))
+        except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
+            return np.full(2 * points, 1e3)
+
+    def chi(x):
+        try:
+            r = evaluator.residual(effects(x))
+        except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
+            return np.full(2 * points, 1e6)
+        return np.concatenate([r.real, r.imag])
+
+    inside = lambda x: np.clip(x, lower + 1e-9 * span, upper - 1e-9 * span)  # noqa: E731
+    if warm is None:
+        grids = [p.grid() for p in free]
+        shape = tuple(g.size for g in grids)
+        scan = np.array([float(np.sum(robust(np.array(x)) ** 2)) for x in itertools.product(*grids)])
+        order = [flat for flat in _local_minima(scan, shape)[:starts] if scan[flat] <= 2 * np.min(scan)]
+        origins = [np.array([g[i] for g, i in zip(grids, np.unravel_index(flat, shape))]) for flat in order]
+    else:
+        origins = [np.array([p.to_search(v) for p, v in zip(free, warm)])]
+    best = None
+    for x0 in origins:
+        # evaluation budgets count the finite-difference Jacobians too (k + 1 evaluations per iteration)
+        rough = scipy.optimize.least_squares(robust, inside(x0), bounds=(lower, upper), x_scale=span / 10, diff_step=1e-4,
+                                             method="trf", max_nfev=8, xtol=1e-6, ftol=1e-8)
+        fine = scipy.optimize.least_squares(chi, inside(rough.x), bounds=(lower, upper), x_scale=span / 10, diff_step=1e-4,
+                                            method="trf", max_nfev=max(5, max_evaluations // (len(free) + 1)),
+                                            xtol=1e-8, ftol=1e-10)
+        chi2 = float(np.sum(fine.fun**2))
+        if best is None or chi2 < best[1]:
+            best = (fine.x, chi2, fine.jac)
+    x, chi2, jacobian = best
+    values = tuple(p.from_search(v) for p, v in zip(free, x))
+    std = _standard_deviations(free, x, jacobian, chi2, points)
+    at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
+    residual = evaluator.residual(effects(x))
+    return FittedCandidate(candidate, values, std, chi2, residual=residual, at_bound=at_bound,
+                           evaluations=evaluator.evaluations - count)
+
+
+def _covariance(jacobian, chi2, points, k, prior=None):
+    """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
+
+    Each real component of the residual has variance 1/2 at the floor; the
+    data's information is deflated by the misfit left, ``c = max(1, chi2 /
+    (N - k))``; ``prior`` is the diagonal precision a prior adds (in the
+    residual's units, not deflated).
+    """
+    information = jacobian.T @ jacobian / max(1.0, chi2 / max(points - k, 1))
+    if prior is not None:
+        information = information + np.diag(prior)
+    return 0.5 * np.linalg.pinv(information)
+
+
+def _standard_deviations(free, x, jacobian, chi2, points):
+    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free))
+    std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    return tuple(float(s * p.from_search(v)) if p.log else float(s) for p, s, v in zip(free, std_search, x))
+
+
+# ------------------------------------------------------------------------------------------ ranking
+def _rank(fitted, chi2, residual, evaluator, settings):
+    """Evidence, share of the excess above the floor and the verdict of each candidate; best first."""
+    points = residual.size
+    cells = evaluator.cells
+    above = cells.above(cells.chi2(residual), settings.floor_limit)
+    excess = cells.excess(residual, above)
+    best_chi2 = min([f.chi2 for f in fitted] + [chi2])
+    overdispersion = max(1.0, best_chi2 / points)
+    penalty = np.log(2 * points)
+    for f in fitted:
+        f.evidence = 2 * (chi2 - f.chi2) / overdispersion - len(f.candidate.free) * penalty
+        f.significant = f.evidence > INDISTINGUISHABLE_BIC
+        f.share = (1.0 - cells.excess(f.residual, above) / excess) if excess > 0 else 0.0
+        f.missing = bool(f.significant and above.any() and f.share >= settings.min_share and not f.at_bound)
+    fitted.sort(key=lambda f: (not f.missing, -f.evidence))
+    for f in fitted:
+        if f.missing:
+            f.indistinguishable = tuple(g.candidate.label for g in fitted if g is not f and g.missing
+                                        and abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC)
+    return overdispersion
+
+
+# ------------------------------------------------------------------------------------------ joint refit
+#: Columns of `JointFit.table`.
+JOINT_COLUMNS = ("parameter", "origin", "start", "value", "std", "relative_std", "determined", "at_bound")
+
+
+@dataclass
+class JointFit:
+    """All chosen effects and the variant's own parameters, refitted together.
+
+    ``table`` has one row per parameter: ``parameter`` (``effect[tag].name[index]``), ``origin``
+    (``new``: chosen by this diagnosis; ``variant``: already in the model), ``start``, ``value``,
+    ``std``, ``relative_std``, ``determined``, ``at_bound``; ``correlation`` is their correlation
+    matrix; ``effects`` the refitted new effects and ``machine`` the variant with every refitted value.
+    """
+
+    table: pd.DataFrame
+    correlation: pd.DataFrame
+    chi2: float
+    residual: np.ndarray
+    effects: tuple
+    machine: object
+    evaluations: int = 0
+
+
+def effect_label(effect):
+    extra = effect.values.get("tag") or (effect.values.get("side") if effect.name == "cross_coupling" else None)
+    return f"{effect.name}[{extra}]" if extra else effect.name
+
+
+_FIXED = {("sensor_lowpass", "order")}  # discrete: not refitted
+
+
+def _refittable(effect, candidate=None):
+    """Free parameters of an effect for the joint refit: the candidate's ranges, or the declared physical bounds."""
+    if candidate is not None:
+        return list(candidate.free)
+    out = []
+    for name, spec in type(effect).parameters.items():
+        if spec.kind not in ("float", "floats") or (effect.name, name) in _FIXED:
+            continue
+        value = effect.values[name]
+        entries = list(value) if isinstance(value, tuple) else [value]
+        for i, v in enumerate(entries):
+            index = i if isinstance(value, tuple) else None
+            lower = spec.lower if spec.lower is not None else -np.inf
+            upper = spec.upper if spec.upper is not None else np.inf
+            if v > 0 and lower >= 0:
+                out.append(FreeParameter(name, max(lower, v * 1e-3), min(upper, v * 1e3), log=True, start=v, index=index))
+            else:
+                width = max(abs(v), 1e-3)
+                out.append(FreeParameter(name, max(lower, v - 100 * width), min(upper, v + 100 * width), log=False,
+                                         start=v, index=index))
+    return out
+
+
+def _with_values(effect, parameters, values):
+    """A copy of ``effect`` with the given parameters (per-element entries by index) set."""
+    new = dict(effect.values)
+    for p, v in zip(parameters, values):
+        if p.index is None:
+            new[p.name] = v
+        else:
+            entries = list(new[p.name])
+            entries[p.index] = v
+            new[p.name] = tuple(entries)
+    return type(effect)(**new)
+
+
+def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True, initial=None):
+    """Refit the chosen effects and the variant's own effects together.
+
+    Parameters
+    ----------
+    machine : ambid.machine.Machine
+        The model variant as it is (its effects not yet applied).
+    measured : dict
+        `ambid.compare.measured_channels`.
+    chosen : sequence of FittedCandidate
+        Effects this diagnosis chose (their values start the refit; no prior).
+    settings : DiagnoseSettings
+        ``prior_width``: the prior on the variant's own parameters (in search
+        coordinates), which keeps what the data do not determine where the
+        variant has it; ``determined_std``; ``max_evaluations``.
+    refit_variant : bool
+        Free the variant's own effects (amplifier bandwidths, the update's moduli, ...).
+    initial : JointFit, optional
+        An earlier refit of the same variant whose values start this one (the
+        prior stays centred on the variant's configured values).
+
+    Returns
+    -------
+    JointFit
+    """
+    from .plant import Plant
+
+    own = [e for e in machine.effects if refit_variant and _refittable(e)]
+    kept = tuple(e for e in machine.effects if e not in own)
+    base = Plant(replace(machine, effects=kept))
+    evaluator = _Evaluator(base, measured, cells or _Cells(measured))
+    blocks = [(e, _refittable(e), "variant", None) for e in own]
+    blocks += [(f.effect, list(f.candidate.free), "new", f.values) for f in chosen]
+    parameters = [p for _, ps, _, _ in blocks for p in ps]
+    if not parameters:
+        residual = evaluator.residual(())
+        return JointFit(pd.DataFrame(columns=list(JOINT_COLUMNS)), pd.DataFrame(), float(np.vdot(residual, residual).real), residual, (), machine)
+    starts = [v for _, ps, _, values in blocks for p, v in zip(ps, values or [p.start_value for p in ps])]
+    lower = np.array([p.to_search(p.lower) for p in parameters])
+    upper = np.array([p.to_search(p.upper) for p in parameters])
+    span = upper - lower
+    x0 = np.clip([p.to_search(v) for p, v in zip(parameters, starts)], lower + 1e-9 * span, upper - 1e-9 * span)
+    origins = [origin for _, ps, origin, _ in blocks for _ in ps]
+    begin = x0.copy()
+    if initial is not None and not initial.table.empty:
+        earlier = dict(zip(initial.table["parameter"], initial.table["value"]))
+        labels = [f"{effect_label(e)}.{p.name}" + (f"[{p.index}]" if p.index is not None else "") for e, ps, _, _ in blocks for p in ps]
+        begin = np.clip([p.to_search(earlier[label]) if label in earlier else x for p, label, x in zip(parameters, labels, x0)],
+                        lower + 1e-9 * span, upper - 1e-9 * span)
+    prior = np.array([origin == "variant" for origin in origins])
+    # the prior's residual (x - x0) / (sqrt(2) w) makes chi2 plus the sum of its squares the negative log posterior
+    prior_scale = 1.0 / (np.sqrt(2.0) * settings.prior_width)
+    points = evaluator.values.size
+
+    def build(x):
+        out, k = [], 0
+        for effect, ps, _, _ in blocks:
+            new = _with_values(effect, ps, [p.from_search(v) for p, v in zip(ps, x[k:k + len(ps)])])
+            new.check(base.machine)
+            out.append(new)
+            k += len(ps)
+        return out
+
+    def residual(x):
+        try:
+            r = evaluator.residual(build(x))
+        except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
+            r = np.full(points, 1e3)
+        return np.concatenate([r.real, r.imag, prior_scale * (x - x0)[prior]])
+
+    solution = scipy.optimize.least_squares(residual, begin, bounds=(lower, upper), x_scale=np.minimum(span / 10, 1.0),
+                                            diff_step=1e-4, method="trf", max_nfev=3 * settings.max_evaluations,
+                                            xtol=1e-8, ftol=1e-10)
+    x = solution.x
+    effects = build(x)
+    fitted = evaluator.residual(effects)
+    chi2 = float(np.vdot(fitted, fitted).real)
+    covariance = _covariance(solution.jac[: 2 * points], chi2, points, len(parameters),
+                             prior=np.where(prior, 2 * prior_scale**2, 0.0))
+    std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    scale = np.where(std_search > 0, std_search, 1.0)
+    rows = []
+    k = 0
+    for effect, ps, origin, _ in blocks:
+        label = effect_label(effect)
+        for p in ps:
+            value = p.from_search(x[k])
+            std = float(std_search[k] * value) if p.log else float(std_search[k])
+            relative = float(std_search[k]) if p.log else (abs(std / value) if value != 0 else np.inf)
+            rows.append({"parameter": f"{label}.{p.name}" + (f"[{p.index}]" if p.index is not None else ""),
+                         "origin": origin, "start": p.from_search(x0[k]), "value": value, "std": std,
+                         "relative_std": relative, "determined": bool(relative < settings.determined_std),
+                         "at_bound": bool(min(x[k] - lower[k], upper[k] - x[k]) <= AT_BOUND * span[k])})
+            k += 1
+    table = pd.DataFrame(rows, columns=list(JOINT_COLUMNS))
+    correlation = pd.DataFrame(covariance / np.outer(scale, scale), index=table["parameter"], columns=table["parameter"])
+    refitted = replace(machine, effects=kept + tuple(effects))
+    return JointFit(table, correlation, chi2, fitted, tuple(effects[len(own):]), refitted, solution.nfev)
+
+
+# ------------------------------------------------------------------------------------------ the diagnosis
 @dataclass
 class Diagnosis:
-    """Result of `diagnose`: the ranking and what is needed to explain it."""
+    """Result of `diagnose`.
+
+    ``ranked``: every candidate fitted on the model (with its own parameters refitted first when
+    that lowers the misfit: ``base_chi2``), missing ones first, by evidence;
+    ``sequence``: the missing effects chosen one after the other; ``joint``: their joint refit
+    with the variant's own parameters; ``cells_before`` / ``cells_after``: the misfit per family
+    and band of the model as it is and after the joint refit; ``verdict``: ``missing``
+    (effects to add), ``retune`` (nothing to add, but the variant's own parameters move
+    and that brings the misfit to the floor), ``unexplained`` (misfit above the floor that
+    no library effect explains) or ``nothing`` (at the floor).
+    """
 
     chi2: float  # of the model as it is
     points: int  # complex points N
     overdispersion: float
-    ranked: list  # FittedCandidate, best first
-    sequence: list = field(default_factory=list)  # significant effects, each fitted on top of the ones before
+    ranked: list
+    base_chi2: float = None  # of the model the candidates were fitted on (its own parameters refitted)
+    sequence: list = field(default_factory=list)
+    joint: JointFit | None = None
+    cells_before: pd.DataFrame = None
+    cells_after: pd.DataFrame = None
+    verdict: str = "nothing"
+    retune: pd.DataFrame = None  # variant parameters the joint refit moves beyond their uncertainty
 
     @property
     def excess(self):
@@ -191,73 +681,49 @@ class Diagnosis:
         return max(fitted.chi2 / self.points - 1.0, 0.0)
 
     @property
+    def base_excess(self):
+        """Excess of the model the candidates were fitted on."""
+        return max((self.chi2 if self.base_chi2 is None else self.base_chi2) / self.points - 1.0, 0.0)
+
+    @property
     def best(self):
-        return self.ranked[0] if self.ranked and self.ranked[0].significant else None
+        return self.ranked[0] if self.ranked and self.ranked[0].missing else None
+
+    @property
+    def unexplained(self):
+        """Cells still above the floor after the joint refit (empty when the verdict is not ``unexplained``)."""
+        if self.cells_after is None:
+            return pd.DataFrame()
+        return self.cells_after[self.cells_after["above_floor"]]
+
+    def summary(self):
+        """The verdict in one row: ``verdict``, ``effects`` (chosen), ``retune`` (variant parameters moved),
+        ``unexplained`` (cells above the floor after the joint refit), ``chi2_per_point`` before and after."""
+        after = self.joint.chi2 if self.joint is not None else self.chi2
+        return {"verdict": self.verdict, "effects": ", ".join(f.candidate.label for f in self.sequence),
+                "retune": ", ".join(self.retune["parameter"]) if self.retune is not None else "",
+                "unexplained": ", ".join(f"{r.family} {r.band}" for r in self.unexplained.itertuples()),
+                "chi2_per_point_before": self.chi2 / self.points, "chi2_per_point_after": after / self.points}
 
     def table(self):
-        """One row per candidate, best first."""
+        """One row per candidate, in ranking order."""
         rows = []
         for rank, fitted in enumerate(self.ranked, start=1):
-            removed = 1.0 - self.excess_after(fitted) / self.excess if self.excess > 0 else 0.0
+            removed = 1.0 - self.excess_after(fitted) / self.base_excess if self.base_excess > 0 else 0.0
             rows.append({
                 "rank": rank, "candidate": fitted.candidate.label, "effect": fitted.candidate.effect,
                 "parameters": ", ".join(f"{p.name}={v:.6g}" for p, v in zip(fitted.candidate.free, fitted.values)),
                 "parameter_std": ", ".join(f"{p.name}={s:.3g}" for p, s in zip(fitted.candidate.free, fitted.std)),
-                "k": len(fitted.candidate.free), "chi2": fitted.chi2, "chi2_per_point": fitted.chi2 / self.points,
-                "excess_removed": removed, "evidence_bic": fitted.evidence, "significant": fitted.significant,
+                "at_bound": ", ".join(fitted.at_bound), "k": len(fitted.candidate.free), "chi2": fitted.chi2,
+                "chi2_per_point": fitted.chi2 / self.points, "excess_removed": removed, "share_above_floor": fitted.share,
+                "evidence_bic": fitted.evidence, "significant": fitted.significant, "missing": fitted.missing,
                 "indistinguishable_from": ", ".join(fitted.indistinguishable), "evaluations": fitted.evaluations,
             })
         return pd.DataFrame(rows)
 
 
-def _fit(evaluator, candidate, max_evaluations):
-    """Scan the leading parameter, then bounded least squares on all of them (search coordinates)."""
-    free = candidate.free
-    lower = np.array([p.to_search(p.lower) for p in free])
-    upper = np.array([p.to_search(p.upper) for p in free])
-    start = np.array([p.to_search(p.start) if p.start is not None else 0.5 * (lo + hi) for p, lo, hi in zip(free, lower, upper)])
-    count = evaluator.evaluations
-
-    def residual(x):
-        try:
-            effect = candidate.build([p.from_search(v) for p, v in zip(free, x)])
-            effect.check(evaluator.machine)
-            _, r = evaluator.residual(effect)
-        except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
-            return np.full(2 * points, 1e6)
-        return np.concatenate([r.real, r.imag])
-
-    points = sum(values.size for _, values, _ in evaluator.measured.values())
-    best_x, best_chi2 = start, np.inf
-    for value in np.linspace(lower[0], upper[0], candidate.scan_points):
-        x = start.copy()
-        x[0] = value
-        chi2 = float(np.sum(residual(x) ** 2))
-        if chi2 < best_chi2:
-            best_x, best_chi2 = x, chi2
-    span = upper - lower
-    solution = scipy.optimize.least_squares(residual, np.clip(best_x, lower + 1e-9 * span, upper - 1e-9 * span),
-                                            bounds=(lower, upper), x_scale=span / 10, diff_step=1e-4, method="trf",
-                                            max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10)
-    x = solution.x
-    chi2 = float(np.sum(solution.fun**2))
-    if best_chi2 < chi2:
-        x, chi2 = best_x, best_chi2
-    values = tuple(p.from_search(v) for p, v in zip(free, x))
-    # standard deviation from the Jacobian (search coordinates, then to values): each real component of the
-    # residual has variance 1/2 at the noise floor, inflated by the misfit left (chi2 per point above 1)
-    jacobian = solution.jac
-    try:
-        covariance = 0.5 * max(1.0, chi2 / points) * np.linalg.pinv(jacobian.T @ jacobian)
-        std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    except np.linalg.LinAlgError:
-        std_search = np.full(len(free), np.inf)
-    std = tuple(float(s * v) if p.log else float(s) for p, s, v in zip(free, std_search, values))
-    return FittedCandidate(candidate, values, std, chi2, evaluations=evaluator.evaluations - count)
-
-
-def diagnose(machine, measured, candidates=None, max_evaluations=60, sequence_length=1):
-    """Fit every candidate effect on top of ``machine`` and rank them by evidence.
+def diagnose(machine, measured, candidates=None, settings=None, **overrides):
+    """Fit every candidate effect on top of ``machine``, choose the missing ones, refit them jointly.
 
     Parameters
     ----------
@@ -267,188 +733,67 @@ def diagnose(machine, measured, candidates=None, max_evaluations=60, sequence_le
         `ambid.compare.measured_channels` of one identification run.
     candidates : list of Candidate, optional
         Default `candidate_space` of the machine.
-    max_evaluations : int
-        Least-squares evaluations per candidate after its scan.
-    sequence_length : int
-        With more than one missing effect, a single effect explains only part
-        of the misfit and effects of similar shape can absorb part of another's
-        (a low-pass bending a housing resonance): up to this many significant
-        effects are chosen one after the other (forward selection), each
-        fitted on top of the ones before and each a different candidate
-        (`Diagnosis.sequence`).
+    settings : DiagnoseSettings, optional
+        ``overrides`` replace single settings (``sequence_length=1``).
 
     Returns
     -------
     Diagnosis
     """
+    from .plant import Plant
+
+    settings = replace(settings or DiagnoseSettings(), **overrides)
     if not measured:
         raise DiagnoseError("no measured channel to diagnose")
-    evaluator = _Evaluator(machine, measured)
-    chi2, residual = evaluator.residual(None)
-    points = residual.size
+    cells = _Cells(measured)
+    residual = _Evaluator(Plant(machine), measured, cells).residual(())
+    chi2 = float(np.vdot(residual, residual).real)
+    cells_before = cells.frame(residual, settings.floor_limit)
+    above_before = cells_before["above_floor"].to_numpy()
+    # the variant's own parameters first: a misfit they explain is not a missing effect
+    retuned = joint_refit(machine, measured, (), settings, cells) if above_before.any() else None
+    base = retuned.machine if retuned is not None and retuned.chi2 < chi2 else machine
+    evaluator = _Evaluator(Plant(base), measured, cells)
+    current = evaluator.residual(()) if base is not machine else residual
     candidates = candidates or candidate_space(machine)
-    fitted = [_fit(evaluator, candidate, max_evaluations) for candidate in candidates]
-    best_chi2 = min([f.chi2 for f in fitted] + [chi2])
-    overdispersion = max(1.0, best_chi2 / points)
-    penalty = np.log(2 * points)
-    for f in fitted:
-        f.evidence = 2 * (chi2 - f.chi2) / overdispersion - len(f.candidate.free) * penalty
-        f.significant = f.evidence > INDISTINGUISHABLE_BIC
-    fitted.sort(key=lambda f: -f.evidence)
-    for f in fitted:
-        if f.significant:
-            f.indistinguishable = tuple(g.candidate.label for g in fitted if g is not f and g.significant
-                                        and abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC)
-    diagnosis = Diagnosis(chi2=chi2, points=points, overdispersion=overdispersion, ranked=fitted)
-    if diagnosis.best is not None:
-        diagnosis.sequence = [diagnosis.best]
-        if sequence_length > 1:
-            others = [c for c in candidates if c.label != diagnosis.best.candidate.label]  # a different effect next
-            following = diagnose(machine.with_effects(machine.effects + (diagnosis.best.effect,)), measured, others,
-                                 max_evaluations, sequence_length - 1)
-            diagnosis.sequence += following.sequence
-    return diagnosis
-
-
-def where_it_helps(before, after, top=3):
-    """The channels and bands whose chi2 a candidate lowers most: text from two `ambid.compare.summarize` tables."""
-    keys = ["output", "input", "band"]
-    merged = before.merge(after, on=keys, suffixes=("_before", "_after"))
-    merged = merged[merged["output"] != "all"]
-    merged["drop"] = merged["chi2_before"] - merged["chi2_after"]
-    channels = merged[merged["band"] == "all"].sort_values("drop", ascending=False).head(top)
-    bands = merged[merged["band"] != "all"].groupby("band", sort=False)["drop"].sum().sort_values(ascending=False)
-    channel_text = ", ".join(f"{r.output}/{r.input} ({r.chi2_before:.3g} -> {r.chi2_after:.3g})" for r in channels.itertuples()
-                             if r.drop > 0)
-    return {"channels": channel_text or "none", "band": bands.index[0] if len(bands) and bands.iloc[0] > 0 else "none"}
-
-
-def effects_config_lines(effects):
-    """The ``effects:`` lines to add to a machine config (YAML), parameters rounded to 4 significant digits."""
-    entries = []
-    for effect in effects:
-        entry = effect.to_config()
-        entry["parameters"] = {k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in entry["parameters"].items()
-                               if k != "axes" or tuple(v) != tuple(EFFECTS[effect.name].parameters["axes"].default)}
-        entries.append(entry)
-    return yaml.safe_dump({"effects": entries}, sort_keys=False, default_flow_style=None).rstrip("\n")
-
-
-def _phase_slope(frame):
-    """Least-squares slope through the origin of phase error [deg] against frequency [Hz], and its R^2."""
-    f, phase = frame["frequency_hz"].to_numpy(), frame["phase_error_deg"].to_numpy()
-    good = np.isfinite(phase)
-    f, phase = f[good], phase[good]
-    if f.size < 3:
-        return 0.0, 0.0
-    slope = float(np.sum(f * phase) / np.sum(f * f))
-    total = float(np.sum(phase**2))
-    return slope, 1.0 - float(np.sum((phase - slope * f) ** 2)) / total if total > 0 else 0.0
-
-
-def fingerprint(errors, summary):
-    """The residual of a model in words: sentences an engineer reads before the ranking.
-
-    ``errors`` / ``summary`` are `ambid.compare.channel_errors` / `summarize` of
-    the model (measurement / model ratio: a positive phase error means the
-    model leads the measurement, i.e. the machine lags more than the model).
-    """
-    sentences = []
-    overall = summary[(summary["output"] == "all")].iloc[0]
-    sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = noise floor); rms magnitude error "
-                     f"{overall['rms_magnitude_db']:.2f} dB, rms phase error {overall['rms_phase_deg']:.2f} deg.")
-    per_channel = summary[(summary["band"] == "all") & (summary["output"] != "all")]
-    worst = per_channel.sort_values("chi2", ascending=False).head(3)
-    sentences.append("Largest misfit: " + ", ".join(f"{r.output}/{r.input} (chi2 {r.chi2:.3g})" for r in worst.itertuples()) + ".")
-    bands = summary[(summary["output"] != "all") & (summary["band"] != "all")].groupby("band", sort=False)["chi2"].mean()
-    if len(bands):
-        sentences.append(f"The misfit is largest in the {bands.idxmax()} band (mean chi2 {bands.max():.3g}).")
-    diagonal = errors[(errors["output"] == errors["input"]) & errors["output"].isin(RADIAL_AXES + ("Z",))]
-    currents = errors[errors["output"].str.startswith("I_")]
-    for name, frame in (("position", diagonal), ("coil-current", currents)):
-        if frame.empty:
-            continue
-        top = frame["frequency_hz"].max()
-        upper = frame[frame["frequency_hz"] >= 0.8 * top]
-        lag = float(upper["phase_error_deg"].median())
-        magnitude = float(upper["magnitude_error_db"].median())
-        slopes = [_phase_slope(group) for _, group in frame.groupby("output")]
-        linear = all(r2 > 0.9 for _, r2 in slopes) and len({np.sign(s) for s, _ in slopes}) == 1
-        if abs(lag) < 1.0 and abs(magnitude) < 0.2:
-            sentences.append(f"On the {name} channels the model matches near {top:.0f} Hz "
-                             f"(phase {lag:+.2f} deg, magnitude {magnitude:+.2f} dB).")
-            continue
-        shape = "grows linearly with frequency" if linear else "grows with frequency" if abs(lag) >= 1.0 else "is small"
-        direction = "lag" if lag > 0 else "lead"
-        text = (f"On every {name} channel the measured phase {direction} beyond the model {shape}: "
-                f"{abs(lag):.1f} deg near {top:.0f} Hz; magnitude {magnitude:+.2f} dB there (model / measurement)")
-        if linear and lag > 0 and abs(magnitude) < 0.5:
-            text += f"; a pure delay of {np.mean([s for s, _ in slopes]) / 360 * 1e6:.0f} us would do this"
-        sentences.append(text + ".")
-    cross = errors[(errors["output"] != errors["input"]) & errors["output"].isin(RADIAL_AXES)]
-    cross_plane = cross[[RADIAL_AXES.index(o) % 2 != RADIAL_AXES.index(i) % 2 for o, i in zip(cross["output"], cross["input"])]]
-    if not cross_plane.empty:
-        chi2 = float(np.mean(cross_plane["normalized_error"] ** 2))
-        if chi2 > 2.0:
-            sentences.append(f"The x-y cross channels, which the model has at zero (or small), carry signal: chi2 {chi2:.3g}.")
-    return sentences
-
-
-def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
-    """The candidates table (with where each helps) and the diagnosis in Markdown: verdict, fingerprint, config lines.
-
-    Parameters
-    ----------
-    diagnosis : Diagnosis
-    plant : ambid.plant.Plant
-        The model the diagnosis started from.
-    measured : dict
-        `ambid.compare.measured_channels`.
-    bands_hz : sequence
-        Band edges of `ambid.compare.summarize`.
-    """
-    model = model_response(plant, measured)
-    errors = channel_errors(measured, model)
-    before = summarize(errors, bands_hz)
-    table = diagnosis.table()
-    helps = [where_it_helps(before, summarize(channel_errors(measured, model_response(plant_with_effect(plant, f.effect), measured)),
-                                              bands_hz)) for f in diagnosis.ranked]
-    table["helps_channels"] = [h["channels"] for h in helps]
-    table["helps_band"] = [h["band"] for h in helps]
-    lines = [f"# Diagnosis: {title}", ""]
-    best = diagnosis.best
-    excess = diagnosis.excess
-    if best is None:
-        lines += ["**Nothing significant is missing**: no candidate effect lowers the misfit by more than the penalty "
-                  f"for its parameters (BIC evidence > {INDISTINGUISHABLE_BIC:g}). Excess over the noise floor {excess:.3g}.", ""]
+    fitted = [_fit(evaluator, c, (), settings.max_evaluations) for c in candidates]
+    overdispersion = _rank(fitted, float(np.vdot(current, current).real), current, evaluator, settings)
+    diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
+                          base_chi2=float(np.vdot(current, current).real), cells_before=cells_before)
+    # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
+    # before, and the next candidates fitted on top of that joint model
+    # (candidates that could not pay for their parameters on the model as it is are not tried again; the others
+    # start from where they ended)
+    chosen, ranking, joint = [], fitted, (retuned if base is not machine else None)
+    useful = {f.candidate.label for f in fitted if f.evidence > 0}
+    latest = {f.candidate.label: f.values for f in fitted}
+    while ranking and ranking[0].missing and len(chosen) < settings.sequence_length:
+        chosen.append(ranking[0])
+        joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint)
+        remaining = [c for c in candidates if c.label in useful and c.label not in {f.candidate.label for f in chosen}]
+        at_floor = not cells.above(cells.chi2(joint.residual), settings.floor_limit).any()
+        if not remaining or at_floor or len(chosen) >= settings.sequence_length:
+            break
+        evaluator = _Evaluator(Plant(joint.machine), measured, cells)
+        ranking = [_fit(evaluator, c, (), settings.max_evaluations, warm=latest[c.label]) for c in remaining]
+        _rank(ranking, joint.chi2, joint.residual, evaluator, settings)
+        latest.update({f.candidate.label: f.values for f in ranking})
+    diagnosis.sequence = chosen
+    diagnosis.joint = joint
+    after = joint.residual if joint is not None else residual
+    diagnosis.cells_after = cells.frame(after, settings.floor_limit)
+    if diagnosis.joint is not None and not diagnosis.joint.table.empty:
+        table = diagnosis.joint.table
+        moved = table[(table["origin"] == "variant") & table["determined"]
+                      & (np.abs(table["value"] - table["start"]) > 3 * table["std"])
+                      & (np.abs(table["value"] / table["start"] - 1) > 1e-3)]
+        diagnosis.retune = moved
+    if chosen:
+        diagnosis.verdict = "missing"
+    elif diagnosis.cells_after["above_floor"].any():
+        diagnosis.verdict = "unexplained"
+    elif above_before.any() and diagnosis.retune is not None and not diagnosis.retune.empty:
+        diagnosis.verdict = "retune"
     else:
-        removed = 1 - diagnosis.excess_after(best) / excess if excess > 0 else 0.0
-        lines += [f"**Missing: `{best.candidate.label}`** with "
-                  + ", ".join(f"{p.name} = {v:.4g} +- {s:.2g}" for p, v, s in zip(best.candidate.free, best.values, best.std))
-                  + f". It removes {100 * removed:.1f} % of the excess over the noise floor "
-                  f"({excess:.4g} -> {diagnosis.excess_after(best):.4g}); it helps most on {helps[0]['channels']} "
-                  f"and in the {helps[0]['band']} band.", ""]
-        if best.indistinguishable:
-            lines += [f"The data in the measured band cannot tell it from: {', '.join(best.indistinguishable)} "
-                      f"(BIC evidence within {INDISTINGUISHABLE_BIC:g}); either explains the measurement.", ""]
-        if len(diagnosis.sequence) > 1:
-            lines += ["More than one effect is missing.  Chosen one after the other, each fitted on top of the ones before: "
-                      + "; then ".join(f"`{f.candidate.label}` ("
-                                       + ", ".join(f"{p.name} = {v:.4g}" for p, v in zip(f.candidate.free, f.values)) + ")"
-                                       for f in diagnosis.sequence)
-                      + ".  Add the first, rerun, and let the next diagnosis confirm the rest: effects fitted alone "
-                      "absorb part of each other's misfit.", ""]
-    lines += ["## Fingerprint of the residual", ""] + [f"- {sentence}" for sentence in fingerprint(errors, before)] + [""]
-    lines += ["## Ranking", "", "| rank | candidate | parameters | excess removed | BIC evidence | significant |",
-              "|---|---|---|---|---|---|"]
-    for row in table.head(shown).itertuples():
-        lines.append(f"| {row.rank} | {row.candidate} | {row.parameters} | {100 * row.excess_removed:.1f} % | "
-                     f"{row.evidence_bic:.4g} | {'yes' if row.significant else 'no'} |")
-    lines.append("")
-    if best is not None:
-        lines += ["## Add it", "", "Append to the variant's `effects:` in config/config.yaml "
-                  "(`machines.<machine>.variants.<new variant>: {base: <this variant>, effects: [...]}`), "
-                  "or to the machine file:", "", "```yaml", effects_config_lines([best.effect]), "```", ""]
-    lines += [f"Misfit chi2 per point {diagnosis.chi2 / diagnosis.points:.4g} over {diagnosis.points} complex points; "
-              f"overdispersion {diagnosis.overdispersion:.3g}; {sum(f.evaluations for f in diagnosis.ranked)} model evaluations.", ""]
-    return table, "\n".join(lines)
+        diagnosis.verdict = "nothing"
+    return diagnosis

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import ConfigError
-from .machine import ALL_AXES, Foundation
+from .machine import ALL_AXES, AXIS_LOCATION, Foundation
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "COIL_CURRENT_EFFECTS", "register", "effect_from_config", "split_effects",
            "series_state_space"]
@@ -384,6 +384,59 @@ class ModalDamping(Effect):
             per_mode = lambda r: np.full(flexible, r[0]) if r.size == 1 else np.pad(r, (0, flexible - r.size))  # noqa: E731
             total = per_mode(old) + per_mode(new)
         return replace(machine, added_modal_damping=tuple(total.tolist()))
+
+
+@register
+class ActuatorCoefficients(Effect):
+    """The bearings' current and position stiffness differ from the drawing's (thesis eq. 3.2-3.6).
+
+    Per control axis (`ALL_AXES` order, or one value for all), a factor on the
+    force constant ``k = mu0 A N^2 cos theta`` (pole area, turns, fringing) and
+    one on the bias current the amplifiers deliver.  At the magnetic center
+    ``ki = 4 k i_b / (2 g0 + b)^2`` and ``kx = 8 k i_b^2 cos theta / (2 g0 + b)^3``
+    scale as ``s_k s_b`` and ``s_k s_b^2``, so the two factors set ``ki`` and ``kx``
+    independently; the bearing is linearized at its operating point with the
+    changed parameters.  Fingerprint: the rigid-body range moves (the static
+    gain ``-ki / kx`` and the unstable poles ``sqrt(kx / m)``), axis by axis.
+    """
+
+    name = "actuator_coefficients"
+    location = "structure"
+    parameters = {
+        "force_constant_scale": Parameter("-", "factor on the force constant, per axis", default=1.0, lower=0.2, upper=5.0,
+                                          kind="floats"),
+        "bias_current_scale": Parameter("-", "factor on the delivered bias current, per axis", default=1.0, lower=0.2,
+                                        upper=5.0, kind="floats"),
+    }
+
+    def check(self, machine):
+        for key in ("force_constant_scale", "bias_current_scale"):
+            value = self.values[key]
+            if isinstance(value, tuple) and len(value) != len(ALL_AXES):
+                raise ConfigError(f"parameters.{key}", f"one value or one per axis {list(ALL_AXES)}, got {len(value)}")
+
+    def factors(self, axis):
+        """(force constant factor, bias current factor) of one axis."""
+        k = ALL_AXES.index(axis)
+        pick = lambda v: v[k] if isinstance(v, tuple) else v  # noqa: E731
+        return pick(self.force_constant_scale), pick(self.bias_current_scale)
+
+    def _scaled(self, electromagnet, axis):
+        force, bias = self.factors(axis)
+        return replace(electromagnet, pole_area_m2=electromagnet.pole_area_m2 * force,
+                       bias_current_a=electromagnet.bias_current_a * bias)
+
+    def apply(self, machine):
+        bearings = []
+        for bearing in machine.radial_bearings:
+            planes = dict(bearing.plane_electromagnets)
+            for plane in ("x", "y"):
+                axis = next(a for a, (b, p) in AXIS_LOCATION.items() if b == bearing.name and p == plane)
+                planes[plane] = self._scaled(bearing.electromagnet_of(plane), axis)
+            bearings.append(replace(bearing, plane_electromagnets=planes))
+        axial = machine.axial_electromagnet
+        return replace(machine, radial_bearings=tuple(bearings),
+                       axial_electromagnet=None if axial is None else self._scaled(axial, "Z"))
 
 
 @register

@@ -51,6 +51,13 @@ class SteppedSineSettings:
         A step still outside the band after this many measurements is accepted as is (logged).
     axes : tuple of str
         Excitation order (thesis: DX, DY, NX, NY, then Z).
+    repeat_ratio : float or None
+        Beyond the thesis: every ``repeat_every``-th step, once accepted, is measured
+        again at ``repeat_ratio`` times its amplitude (log level 1), so the FRF stage
+        can measure the amplitude-dependent error of the force law (`ambid.floor`).
+        None: no repeats (the thesis' procedure).
+    repeat_every : int
+        Step stride of the repeats (1: every step; steps 0, k, 2k, ... of each axis).
     """
 
     response_min_m: float = 20e-6
@@ -67,6 +74,8 @@ class SteppedSineSettings:
     measure_min_s: float = 0.1
     max_attempts: int = 30
     axes: tuple = ALL_AXES
+    repeat_ratio: float | None = None
+    repeat_every: int = 1
 
     def __post_init__(self):
         checks = [
@@ -77,6 +86,8 @@ class SteppedSineSettings:
             ("measure_periods", self.measure_periods >= 2 and float(self.measure_periods).is_integer(), "must be a whole number >= 2 (the noise lines sit beside it)"),
             ("settle_max_s", 0 <= self.settle_min_s <= self.settle_max_s, "must be >= settle_min_s >= 0"),
             ("max_attempts", self.max_attempts >= 1, "must be >= 1"),
+            ("repeat_ratio", self.repeat_ratio is None or 0 < self.repeat_ratio < 1, "must lie in (0, 1) (or null: no repeats)"),
+            ("repeat_every", float(self.repeat_every).is_integer() and self.repeat_every >= 1, "must be a whole number >= 1"),
         ]
         for key, ok, message in checks:
             if not ok:
@@ -201,9 +212,10 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
     records : list of dict
         One per step, the step records of `ambid.logs.identification_frame`
         (``excited_axis``, ``step``, ``frequency_hz`` (exact), ``amplitude_a``,
-        ``attempts``, ``coefficients`` (20,), ``noise_std`` (20,)), plus
+        ``attempts``, ``coefficients`` (20,), ``noise_std`` (20,), ``level`` 0), plus
         ``peak_response_m`` (peak of the excited axis' V2 about its mean over the
-        window) and ``in_band``.
+        window) and ``in_band``; then one record with ``level`` 1 per repeated step
+        (``settings.repeat_ratio``), measured right after its step at the lower amplitude.
     stats : dict
         ``cycles`` (lockstep controller cycles), ``simulated_s`` (their time),
         ``experiment_s`` (the time the steps would take one after another, as on
@@ -225,6 +237,9 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
     state = rig_model.initial_state(n_steps)
     omega_t = 2 * np.pi * exact * t
     records = [None] * n_steps
+    repeats = [None] * n_steps
+    repeating = np.zeros(n_steps, dtype=bool)  # measuring the level-1 repeat of an accepted step
+    repeat_planned = (settings.repeat_ratio is not None) & (plan.step % int(settings.repeat_every) == 0)
     finished = np.zeros(n_steps, dtype=bool)
     accepted_count = {a: 0 for a in settings.axes}
     cycles = member_cycles = 0
@@ -244,15 +259,28 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
         member_cycles += live.size
         done = (counter[live] == settle[live] + measure[live]) & ~finished[live]
         if done.any():
-            for step in live[done]:
+            repeated = live[done][repeating[live[done]]]
+            for step in repeated:  # a repeat ends the step, without adaptation
+                repeats[step] = _evaluate(step, recordings[:, offsets[step] : offsets[step + 1]], periods[step], exact[step],
+                                          elapsed[step] - measure[step], t, axis_index[step], amplitude[step], attempts[step],
+                                          plan, level=1)
+                repeats[step]["in_band"] = True  # measured at the lower level on purpose
+                finished[step] = True
+            adapting = live[done][~repeating[live[done]]]
+            for step in adapting:
                 records[step] = _evaluate(step, recordings[:, offsets[step] : offsets[step + 1]], periods[step], exact[step],
                                           elapsed[step] - measure[step], t, axis_index[step], amplitude[step], attempts[step], plan)
-            peaks = np.array([records[s]["peak_response_m"] for s in live[done]])
-            new, accepted = adapt_amplitude(amplitude[live[done]], peaks, settings)
-            accepted |= attempts[live[done]] >= settings.max_attempts
-            for step, ok, value, peak in zip(live[done], accepted, new, peaks):
+            peaks = np.array([records[s]["peak_response_m"] for s in adapting])
+            new, accepted = adapt_amplitude(amplitude[adapting], peaks, settings)
+            accepted |= attempts[adapting] >= settings.max_attempts
+            for step, ok, value, peak in zip(adapting, accepted, new, peaks):
                 records[step]["in_band"] = bool(settings.response_min_m <= peak <= settings.response_max_m)
-                if ok:
+                if ok and repeat_planned[step]:  # measure it again, at the lower level, from where the machine is
+                    accepted_count[plan.axis[step]] += 1
+                    repeating[step] = True
+                    amplitude[step] = amplitude[step] * settings.repeat_ratio
+                    counter[step] = 0
+                elif ok:
                     finished[step] = True
                     accepted_count[plan.axis[step]] += 1
                 else:
@@ -267,10 +295,11 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
                 ids = ids[keep]
                 state = state.take(keep)
     experiment_s = float(np.sum(elapsed) * t)
+    records = records + [r for r in repeats if r is not None]
     return records, {"cycles": cycles, "simulated_s": cycles * t, "experiment_s": experiment_s, "member_cycles": member_cycles}
 
 
-def _evaluate(step, segment, periods, frequency_hz, window_start_cycle, sample_time_s, axis, amplitude_a, attempts, plan):
+def _evaluate(step, segment, periods, frequency_hz, window_start_cycle, sample_time_s, axis, amplitude_a, attempts, plan, level=0):
     """Fourier coefficients at the excitation line and noise from the lines beside it."""
     n = segment.shape[1]
     k = np.arange(n)
@@ -286,6 +315,7 @@ def _evaluate(step, segment, periods, frequency_hz, window_start_cycle, sample_t
         "frequency_hz": float(frequency_hz),
         "amplitude_a": float(amplitude_a),
         "attempts": int(attempts),
+        "level": int(level),
         "coefficients": coefficients,
         "noise_std": noise_std,
         "peak_response_m": float(np.max(np.abs(v2 - np.mean(v2)))),

@@ -9,49 +9,134 @@ model side receives the FRF table.
 import numpy as np
 
 from .excitation import StepPlan, run_stepped_sine
-from .frf import current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
+from .frf import frf_from_log
 from .logs import identification_frame
-from .machine import machine_from_config
+from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .plant import Plant
 from .rig import RigModel, rig_from_config
 
-__all__ = ["hidden_effect_draws", "hidden_effect_rig", "identify_on_rig"]
+__all__ = ["SIGNATURE_FLOOR", "effect_signature", "hidden_effect_draws", "hidden_effect_rig", "identify_on_rig"]
 
 
-def hidden_effect_draws(seed=2026):
-    """Parameters of one hidden effect per library entry, drawn uniformly from physical ranges of AMB machines.
+#: Relative floor of the signature of a hidden effect (`effect_signature`): what the stepped sine typically resolves.
+SIGNATURE_FLOOR = {"positions": 0.01, "currents": 0.003}
 
-    Amplifier bandwidth 0.5-3 kHz, controller delay 50-200 us, sensor bandwidth
-    1-5 kHz, eddy-current corner 0.5-5 kHz, x-y coupling 0.5-5 % (either sign,
-    input or output side), lamination-stack (``de_amb``) stiffness 30-100 %,
-    added modal damping 0.003-0.02, speed 10 000-40 000 rpm, sensor shifts
-    5-40 mm (either direction), housing mode 100-600 Hz of 5-30 kg with damping
-    ratio 0.01-0.05.  Returns ``{effect name: parameters}``.
+
+def effect_signature(machine, effects):
+    """How far ``effects`` move the model's response, in units of a typical floor: the largest ``|dG| / sigma``.
+
+    Over the radial matrix, the axial channel and the coil currents of
+    ``machine``'s grids; ``sigma = floor max(|G|, |G_oo| / 10)`` with the relative
+    floors of `SIGNATURE_FLOOR` and ``G_oo`` the output's own diagonal response (a
+    channel the model has at zero, or an anti-resonance, is measured no better
+    than a tenth of its row allows).  A hidden effect of signature 3 changes some
+    points by three times the floor: the weak end of what a diagnosis should see.
     """
+    from .compare import model_response
+    from .diagnose import plant_with_effects
+
+    plant = Plant(machine)
+    radial, axial = machine.radial_grid.frequency_hz, machine.axial_grid.frequency_hz
+    keys = {(o, i): (radial,) for o in RADIAL_AXES for i in RADIAL_AXES}
+    keys[("Z", "Z")] = (axial,)
+    keys.update({(f"I_{a}", a): (radial,) for a in RADIAL_AXES})
+    before = model_response(plant, keys)
+    after = model_response(plant_with_effects(plant, list(effects)), keys)
+    worst = 0.0
+    for key, values in before.items():
+        floor = SIGNATURE_FLOOR["currents" if key[0].startswith("I_") else "positions"]
+        row = np.abs(before[(key[0], key[0])]) if key[0] in RADIAL_AXES else np.abs(values)
+        sigma = floor * np.maximum(np.abs(values), 0.1 * row)
+        worst = max(worst, float(np.max(np.abs(after[key] - values) / sigma)))
+    return worst
+
+
+def _weak_end(machine, build, strong, weak, target=3.0):
+    """The strength between ``strong`` and ``weak`` (log scale) where the signature falls to ``target``."""
+    lo, hi = np.log(strong), np.log(weak)
+    if effect_signature(machine, [build(weak)]) >= target:
+        return weak
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if effect_signature(machine, [build(np.exp(mid))]) >= target:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(lo))
+
+
+def hidden_effect_draws(machine_config, seed=2026, target=3.0):
+    """One hidden effect per library entry, its strength drawn from physical ranges down to a signature of ``target``.
+
+    Physical ranges of AMB machines: amplifier bandwidth from 500 Hz, controller
+    delay up to 200 us, sensor bandwidth from 1 kHz, eddy-current corner from
+    300 Hz, x-y coupling up to 5 % (either sign, input or output side), the
+    stiffness of a random element group between 0.3 and 1.5 times nominal,
+    added modal damping up to 0.02, speed up to 40 000 rpm, sensor shifts up to
+    40 mm (either direction), a housing mode at 100-600 Hz (damping 0.01-0.05)
+    from 5 kg, the bearings' force constants and bias currents off by up to 10 %
+    (each axis its own share of the drawn error).  Each strength is drawn log-uniformly between its strong end and
+    the weak end where `effect_signature` falls to ``target`` times the floor,
+    so the draws include effects barely above what the data resolve.
+
+    Returns
+    -------
+    dict
+        ``{effect name: parameters}``, plus ``"signature"``: ``{effect name: signature}``.
+    """
+    from .effects import effect_from_config
+
+    machine = machine_from_config(machine_config)
     rng = np.random.default_rng(seed)
+    tags = sorted({tag for element in machine.rotor.elements for tag in element.tags})
 
-    def uniform(lower, upper):
-        return float(rng.uniform(lower, upper))
+    def effect(name, parameters):
+        return effect_from_config({"name": name, "parameters": parameters}, name, machine)
 
-    def sign():
-        return float(rng.choice([-1.0, 1.0]))
+    def draw(name, key, strong, weak, fixed=None, transform=lambda v: v, build=None):
+        """Parameters with ``key`` drawn between ``strong`` and the weak end (``transform=None``: the strength itself)."""
+        fixed = fixed or {}
+        build = build or (lambda v: effect(name, {**fixed, key: transform(v)}))
+        end = _weak_end(machine, build, strong, weak, target)
+        value = float(np.exp(rng.uniform(*sorted((np.log(strong), np.log(end))))))
+        return value if transform is None else {**fixed, key: transform(value)}
 
-    return {
-        "amplifier_lowpass": {"cutoff_hz": uniform(500, 3000)},
-        "delay": {"delay_s": uniform(50e-6, 200e-6)},
-        "sensor_lowpass": {"cutoff_hz": uniform(1000, 5000)},
-        "eddy_current": {"corner_hz": uniform(500, 5000)},
-        "cross_coupling": {"coefficient": sign() * uniform(0.005, 0.05), "side": str(rng.choice(["input", "output"]))},
-        "element_stiffness": {"tag": "de_amb", "scale": uniform(0.3, 1.0)},
-        "modal_damping": {"damping_ratio": uniform(0.003, 0.02)},
-        "gyroscopic": {"speed_rpm": uniform(10000, 40000)},
-        "noncollocation": {"de_offset_m": sign() * uniform(0.005, 0.04), "nde_offset_m": sign() * uniform(0.005, 0.04)},
-        "foundation_mode": {"frequency_hz": uniform(100, 600), "mass_kg": uniform(5, 30), "damping_ratio": uniform(0.01, 0.05)},
+    sign = lambda: float(rng.choice([-1.0, 1.0]))  # noqa: E731
+    stiffer = rng.random() < 0.3
+    shift_sign = (sign(), sign())
+    draws = {
+        "amplifier_lowpass": draw("amplifier_lowpass", "cutoff_hz", 500.0, 1e6),
+        "delay": draw("delay", "delay_s", 200e-6, 1e-9),
+        "sensor_lowpass": draw("sensor_lowpass", "cutoff_hz", 1000.0, 1e6),
+        "eddy_current": draw("eddy_current", "corner_hz", 300.0, 1e6),
+        "cross_coupling": draw("cross_coupling", "coefficient", 0.05, 1e-6, {"side": str(rng.choice(["input", "output"]))},
+                               transform=lambda v, s=sign(): s * v),
+        "element_stiffness": draw("element_stiffness", "scale", 0.5 if stiffer else 1 / 0.3, 1e-6,
+                                  {"tag": str(rng.choice(tags))},
+                                  transform=lambda v, up=stiffer: float(np.exp(v)) if up else float(np.exp(-v))),
+        "modal_damping": draw("modal_damping", "damping_ratio", 0.02, 1e-7),
+        "gyroscopic": draw("gyroscopic", "speed_rpm", 40000.0, 1.0),
+        "noncollocation": draw("noncollocation", "de_offset_m", 0.04, 1e-7,
+                               transform=lambda v: v * shift_sign[0]),
+        "foundation_mode": draw("foundation_mode", "mass_kg", 5.0, 1e5,
+                                {"frequency_hz": float(rng.uniform(100, 600)), "damping_ratio": float(rng.uniform(0.01, 0.05))}),
     }
+    spread = rng.uniform(-1.0, 1.0, size=(2, len(ALL_AXES)))  # each axis' force-constant and bias errors, relative
+    actuator = draw("actuator_coefficients", "error", 0.1, 1e-7, transform=None,
+                    build=lambda e: effect("actuator_coefficients", {"force_constant_scale": tuple(1 + e * spread[0]),
+                                                                     "bias_current_scale": tuple(1 + e * spread[1])}))
+    draws["actuator_coefficients"] = {"force_constant_scale": tuple(float(v) for v in 1 + actuator * spread[0]),
+                                      "bias_current_scale": tuple(float(v) for v in 1 + actuator * spread[1])}
+    draws["noncollocation"]["nde_offset_m"] = shift_sign[1] * abs(draws["noncollocation"]["de_offset_m"]) * float(rng.uniform(0.5, 1.5))
+    draws["signature"] = {name: effect_signature(machine, [effect(name, parameters)]) for name, parameters in draws.items()}
+    return draws
 
 
-def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_noise_a=5e-3, name="hidden_effect_rig"):
+def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_noise_a=5e-3, name="hidden_effect_rig",
+                      unmodelled=()):
     """A rig whose truth is the machine plus ``effects`` (``effects:`` entries), centred and weightless.
+
+    ``unmodelled`` entries add physics outside the model's library (`ambid.rig_effects`).
 
     Noise and ADC quantization as on the default rig; no magnetic-center offset,
     gravity or bias-current error, so the rig sits at the operating point the
@@ -63,6 +148,7 @@ def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_nois
         "machine": machine_config.get("name", "machine"),
         "truth": {
             "effects": list(effects),
+            "unmodelled": list(unmodelled),
             "gravity_m_s2": 0.0,
             "sensor_noise_m": sensor_noise_m,
             "sensor_resolution_m": 5e-8,
@@ -94,5 +180,5 @@ def identify_on_rig(rig, machine_config, settings, seed=0, setpoint_m=None):
     """
     plan = StepPlan.for_machine(Plant(machine_from_config(machine_config)), settings)
     records, _ = run_stepped_sine(RigModel(rig, setpoint_m), plan, settings, seed=seed)
-    arrays = log_arrays(identification_frame(records))
-    return frf_table(siso_etfe(arrays), mimo_etfe(arrays), current=current_etfe(arrays))
+    table, _, _ = frf_from_log(identification_frame(records))
+    return table

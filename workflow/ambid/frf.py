@@ -24,21 +24,28 @@ import numpy as np
 import pandas as pd
 
 from .errors import LogError
+from .floor import FloorSettings, systematic_floor
 from .logs import CHANNELS
 from .machine import ALL_AXES, RADIAL_AXES
 
-__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "channel"]
+__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "channel"]
 
 
-def log_arrays(frame):
-    """Per excited axis: frequencies (n,), coefficients (n, 20) and their noise (n, 20), steps in order."""
+def log_arrays(frame, level=0):
+    """Per excited axis: frequencies (n,), coefficients (n, 20) and their noise (n, 20), steps in order.
+
+    A channel the axis' run does not carry (the other bearing's, `ambid.logs.axis_channels`) is NaN.
+    ``level`` selects the steps as accepted (0, the default) or their repeats at a
+    lower amplitude (1, ...; see `ambid.logs`); a log without a ``level`` column is all level 0.
+    """
     out = {}
     index = {name: k for k, name in enumerate(CHANNELS)}
+    frame = frame[frame["level"] == level] if "level" in frame.columns else (frame if level == 0 else frame.iloc[:0])
     for axis, group in frame.groupby("excited_axis", sort=False):
         group = group.sort_values(["step", "channel"])
         steps = group["step"].unique()
-        coefficients = np.zeros((steps.size, len(CHANNELS)), dtype=complex)
-        noise = np.zeros((steps.size, len(CHANNELS)))
+        coefficients = np.full((steps.size, len(CHANNELS)), np.nan, dtype=complex)
+        noise = np.full((steps.size, len(CHANNELS)), np.nan)
         row = np.searchsorted(steps, group["step"].to_numpy())
         column = group["channel"].map(index).to_numpy()
         coefficients[row, column] = group["re"].to_numpy() + 1j * group["im"].to_numpy()
@@ -71,13 +78,16 @@ def siso_etfe(arrays):
     dict
         ``(output, input) -> (frequency_hz, G, std)``; G [m/A] = V2_output / U2_input
         of the run exciting ``input``; std from the logged noise,
-        ``|G| sqrt((s_V / |V|)^2 + (s_U / |U|)^2)``.
+        ``|G| sqrt((s_V / |V|)^2 + (s_U / |U|)^2)``.  Outputs the run does not
+        carry (the other bearing's, when the log leaves them out) have no entry.
     """
     out = {}
     for excited, (frequency, coefficients, noise) in arrays.items():
         u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
         for output in ALL_AXES:
             v, sv = coefficients[:, _v2(output)], noise[:, _v2(output)]
+            if np.isnan(v).all():
+                continue
             out[(output, excited)] = (frequency, *_ratio(v, sv, u, su))
     return out
 
@@ -142,7 +152,8 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
 
 def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     """Long-format FRF table: ``estimator`` (siso / mimo / current), ``output``, ``input``, ``frequency_hz``,
-    ``re``, ``im``, ``std`` [m/A; A/A for ``current``], ``condition`` (of U, MIMO only)."""
+    ``re``, ``im``, ``std`` (noise) [m/A; A/A for ``current``], ``condition`` (of U, MIMO only) and
+    ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it)."""
     parts = []
     for (output, input_axis), (frequency, a, std) in (current or {}).items():
         parts.append(pd.DataFrame({"estimator": "current", "output": output, "input": input_axis, "frequency_hz": frequency,
@@ -157,11 +168,50 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
                 parts.append(pd.DataFrame({"estimator": "mimo", "output": output, "input": input_axis, "frequency_hz": frequency,
                                            "re": plant[:, i, j].real, "im": plant[:, i, j].imag, "std": std[:, i, j],
                                            "condition": condition}))
-    return pd.concat(parts, ignore_index=True)
+    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan)
 
 
-def channel(table, estimator, output, input_axis):
-    """Frequencies, complex values and standard deviations of one channel of an `frf_table`."""
+def frf_from_log(frame, floor_settings=None, source="identification log", estimator="mimo"):
+    """Every FRF of an identification log with its noise and its systematic floor (what the ``frf`` rule writes).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        A validated identification log.
+    floor_settings : ambid.floor.FloorSettings, optional
+    source : str
+        The log, named in errors.
+    estimator : {"mimo", "siso"}
+        ``siso`` leaves the MIMO estimate out (config ``frf.estimator``).
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        `frf_table` of the log's level-0 steps: SISO, MIMO (when all four radial
+        axes were excited and ``estimator`` is mimo) and coil currents,
+        ``systematic_std`` from `ambid.floor`.
+    floors : pandas.DataFrame
+        `ambid.floor.systematic_floor`'s account of how, per family and band.
+    mimo : tuple or None
+        `mimo_etfe`'s output (its condition numbers).
+    """
+    arrays = log_arrays(frame)
+    mimo = (mimo_etfe(arrays, source=source) if estimator == "mimo" and all(a in arrays for a in RADIAL_AXES)
+            else None)
+    table = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
+    table, floors = systematic_floor(table, arrays, frame, floor_settings or FloorSettings())
+    return table, floors, mimo
+
+
+def channel(table, estimator, output, input_axis, systematic=False):
+    """Frequencies, complex values and standard deviations of one channel of an `frf_table`.
+
+    With ``systematic``, also the ``systematic_std`` (NaN where the table has none).
+    """
     rows = table[(table["estimator"] == estimator) & (table["output"] == output) & (table["input"] == input_axis)]
     rows = rows.sort_values("frequency_hz")
-    return rows["frequency_hz"].to_numpy(), rows["re"].to_numpy() + 1j * rows["im"].to_numpy(), rows["std"].to_numpy()
+    out = (rows["frequency_hz"].to_numpy(), rows["re"].to_numpy() + 1j * rows["im"].to_numpy(), rows["std"].to_numpy())
+    if systematic:
+        extra = rows["systematic_std"].to_numpy() if "systematic_std" in rows.columns else np.full(len(rows), np.nan)
+        out += (extra,)
+    return out

@@ -194,15 +194,24 @@ def read_parquet(path, kind=None):
     Raises
     ------
     AmbidError
-        If the file lacks ambid metadata, has another schema version or kind.
+        If ``path`` is a directory, or the file lacks ambid metadata (the
+        Parquet key-value metadata ``ambid.schema_version``, ``ambid.kind``,
+        ``ambid.units``), has another schema version or kind.
     """
+    if Path(path).is_dir():
+        raise AmbidError(f"{path}: is a directory, not a Parquet file")
     try:
         table = pq.read_table(path)
     except (OSError, pa.ArrowInvalid) as error:
         raise AmbidError(f"{path}: not a readable Parquet file ({error})") from None
     raw = table.schema.metadata or {}
     if b"ambid.schema_version" not in raw:
-        raise AmbidError(f"{path}: no ambid metadata (schema version, units)")
+        raise AmbidError(
+            f"{path}: no ambid metadata (the Parquet key-value metadata ambid.schema_version, ambid.kind and "
+            f"ambid.units that ambid writes); a table written by other software is read by the plain-table reader: "
+            f"`ambid check-log {path} --format table`, `ambid import {path} --machine M --run R --format table` "
+            f"(README 'Bring your own logs')"
+        )
     info = {
         "schema_version": raw[b"ambid.schema_version"].decode(),
         "kind": raw.get(b"ambid.kind", b"").decode(),

@@ -5,11 +5,20 @@ and, for every accepted frequency step, records the Fourier coefficient of
 every channel at the excitation frequency.  The 20 channels are, for each axis
 of `ALL_AXES`, the plant input ``U2_<axis>`` (commanded control current [A]),
 the plant output ``V2_<axis>`` (measured position [m]) and the measured coil
-currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  Complex coefficients
-are stored as ``re`` / ``im`` columns in SI units, with the standard deviation
-``noise_std`` of each coefficient.  `validate_identification_log` checks the
+currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  A step carries at least
+the channels of its own bearing (`axis_channels`: the 16 radial channels when a
+radial axis is excited, the 4 axial ones when Z is), and either all or none of
+the other bearing's, the same on every step of an excited axis.  Complex
+coefficients are stored as ``re`` / ``im`` columns in SI units, with the
+standard deviation ``noise_std`` of each coefficient.  `validate_identification_log` checks the
 contract on writing and on reading, so a malformed log fails with the rows at
 fault instead of corrupting an FRF downstream.
+
+An optional column ``level`` (integer, default 0) marks repeated steps: level 0
+is the step as the adaptive stepped sine accepted it; a step measured again at
+a lower excitation amplitude, at the same frequency, has level 1.  Pairs of
+levels measure the amplitude-dependent (nonlinear) error of the FRF
+(`ambid.floor`); every estimate of the FRF itself uses level 0.
 """
 
 import numpy as np
@@ -17,11 +26,16 @@ import pandas as pd
 
 from .errors import LogError
 from .io import read_parquet, write_parquet
-from .machine import ALL_AXES
+from .machine import ALL_AXES, RADIAL_AXES
 
 __all__ = [
     "CHANNELS",
+    "RADIAL_CHANNELS",
+    "AXIAL_CHANNELS",
+    "axis_channels",
+    "log_source",
     "COLUMNS",
+    "OPTIONAL_COLUMNS",
     "KIND",
     "UNITS",
     "channel_unit",
@@ -30,6 +44,7 @@ __all__ = [
     "read_identification_log",
     "validate_identification_log",
     "noise_from_scatter",
+    "scatter_std",
 ]
 
 KIND = "identification_log"
@@ -40,6 +55,10 @@ CHANNELS = (
     + tuple(f"V2_{axis}" for axis in ALL_AXES)
     + tuple(name for axis in ALL_AXES for name in (f"I_upper_{axis}", f"I_lower_{axis}"))
 )
+
+#: The channels of the radial bearings (DX, DY, NX, NY) and of the axial bearing (Z), in `CHANNELS` order.
+RADIAL_CHANNELS = tuple(name for name in CHANNELS if not name.endswith("_Z"))
+AXIAL_CHANNELS = tuple(name for name in CHANNELS if name.endswith("_Z"))
 
 #: Column name -> kind of dtype required ("str", "int" or "float").
 COLUMNS = {
@@ -53,6 +72,8 @@ COLUMNS = {
     "noise_std": "float",
     "attempts": "int",
 }
+#: Columns a log may carry beyond `COLUMNS`: column name -> kind of dtype.
+OPTIONAL_COLUMNS = {"level": "int"}
 
 _COEFFICIENT_UNIT = "SI (A for U2_* and I_*, m for V2_*)"
 UNITS = {
@@ -63,6 +84,7 @@ UNITS = {
     "noise_std": _COEFFICIENT_UNIT,
     "step": "-",
     "attempts": "-",
+    "level": "-",
 }
 _STEP_KEYS = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts", "coefficients", "noise_std")
 _MAX_GROUPS_QUOTED = 4
@@ -81,6 +103,20 @@ def channel_unit(name):
     return "m" if name.startswith("V2_") else "A"
 
 
+def axis_channels(axis):
+    """The channels every step exciting ``axis`` must carry: its bearing's (`RADIAL_CHANNELS` or `AXIAL_CHANNELS`)."""
+    return RADIAL_CHANNELS if axis in RADIAL_AXES else AXIAL_CHANNELS
+
+
+def log_source(path, info):
+    """The file a user gave for a log: its provenance's ``file`` when it was converted (a ``.m``, a table), else ``path``.
+
+    Errors about a log's content name this file, not the Parquet it was converted to.
+    """
+    original = ((info or {}).get("metadata") or {}).get("provenance", {}).get("file")
+    return f"{original} (converted to {path})" if original and str(original) != str(path) else str(path)
+
+
 def identification_frame(steps):
     """Long-format identification log from a list of step records.
 
@@ -94,7 +130,10 @@ def identification_frame(steps):
         ``attempts`` (int >= 1, amplitude adaptations used), ``coefficients``
         (complex array (20,), Fourier coefficients in `CHANNELS` order [A or m])
         and ``noise_std`` (float array (20,), standard deviation of each
-        coefficient [A or m]).
+        coefficient [A or m]); optionally ``channels`` (the names, in any
+        order, of the channels the step carries; the two arrays then hold
+        those channels only) and ``level`` (int, 0 unless the step is a repeat at
+        a lower amplitude).
 
     Returns
     -------
@@ -108,7 +147,6 @@ def identification_frame(steps):
     LogError
         If a record lacks a key, names an unknown axis or has arrays of the wrong shape.
     """
-    n_channels = len(CHANNELS)
     for index, record in enumerate(steps):
         where = f"step record {index}"
         missing = [key for key in _STEP_KEYS if key not in record]
@@ -116,15 +154,25 @@ def identification_frame(steps):
             raise LogError("identification_frame", f"{where}: missing key(s) {missing}")
         if record["excited_axis"] not in ALL_AXES:
             raise LogError("identification_frame", f"{where}: unknown axis {record['excited_axis']!r}")
+        n_channels = len(record.get("channels", CHANNELS))
         for key in ("coefficients", "noise_std"):
             if np.shape(record[key]) != (n_channels,):
                 raise LogError("identification_frame", f"{where}: {key} has shape {np.shape(record[key])}, expected ({n_channels},)")
-    records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r["step"])))
-    coefficients = np.array([np.asarray(r["coefficients"], dtype=complex) for r in records]).reshape(-1)
-    noise_std = np.array([np.asarray(r["noise_std"], dtype=float) for r in records]).reshape(-1)
+    records = sorted(steps, key=lambda r: (ALL_AXES.index(r["excited_axis"]), int(r.get("level", 0)), int(r["step"])))
+    index = {name: k for k, name in enumerate(CHANNELS)}
+    names, coefficients, noise_std = [], [], []
+    for r in records:  # each step's channels in canonical order
+        channels = list(r.get("channels", CHANNELS))
+        order = np.argsort([index.get(name, len(CHANNELS)) for name in channels], kind="stable")
+        names.append(np.asarray(channels, dtype=object)[order])
+        coefficients.append(np.asarray(r["coefficients"], dtype=complex)[order])
+        noise_std.append(np.asarray(r["noise_std"], dtype=float)[order])
+    counts = np.array([len(n) for n in names], dtype=np.int64)
+    coefficients = np.concatenate(coefficients or [np.zeros(0, complex)])
+    noise_std = np.concatenate(noise_std or [np.zeros(0)])
 
     def per_step(key, dtype):
-        return np.repeat(np.array([r[key] for r in records], dtype=dtype), n_channels)
+        return np.repeat(np.array([r.get(key, 0) for r in records], dtype=dtype), counts)
 
     return pd.DataFrame(
         {
@@ -132,11 +180,12 @@ def identification_frame(steps):
             "step": per_step("step", np.int64),
             "frequency_hz": per_step("frequency_hz", np.float64),
             "amplitude_a": per_step("amplitude_a", np.float64),
-            "channel": np.tile(np.array(CHANNELS, dtype=object), len(records)),
+            "channel": np.concatenate(names or [np.zeros(0, dtype=object)]),
             "re": coefficients.real.astype(np.float64),
             "im": coefficients.imag.astype(np.float64),
             "noise_std": noise_std,
             "attempts": per_step("attempts", np.int64),
+            "level": per_step("level", np.int64),
         }
     )
 
@@ -161,8 +210,9 @@ def write_identification_log(frame, path, metadata=None):
     """
     validate_identification_log(frame, str(path))
     channel_units = {name: channel_unit(name) for name in CHANNELS}
+    columns = list(COLUMNS) + [name for name in OPTIONAL_COLUMNS if name in frame.columns]
     write_parquet(
-        frame[list(COLUMNS)].reset_index(drop=True),
+        frame[columns].reset_index(drop=True),
         path,
         units=UNITS,
         kind=KIND,
@@ -189,6 +239,8 @@ def read_identification_log(path):
     frame, info = read_parquet(path, kind=KIND)
     frame = _plain_columns(frame)
     validate_identification_log(frame, str(path))
+    if "level" not in frame.columns:
+        frame = frame.assign(level=np.zeros(len(frame), dtype=np.int64))
     return frame, info
 
 
@@ -238,20 +290,50 @@ def _check_columns(frame, source):
     missing = [name for name in COLUMNS if name not in frame.columns]
     if missing:
         raise LogError(source, f"missing column(s) {missing}; an identification log has {list(COLUMNS)}")
-    extra = [name for name in frame.columns if name not in COLUMNS]
+    extra = [name for name in frame.columns if name not in COLUMNS and name not in OPTIONAL_COLUMNS]
     if extra:
-        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)}")
+        raise LogError(source, f"unexpected column(s) {extra}; an identification log has {list(COLUMNS)} "
+                               f"and optionally {list(OPTIONAL_COLUMNS)}")
     required = {
         "str": pd.api.types.is_string_dtype,
         "int": pd.api.types.is_integer_dtype,
         "float": pd.api.types.is_float_dtype,
     }
-    for name, kind in COLUMNS.items():
+    present = {**COLUMNS, **{name: kind for name, kind in OPTIONAL_COLUMNS.items() if name in frame.columns}}
+    for name, kind in present.items():
         if not required[kind](frame[name]):
             raise LogError(source, f"column {name!r} has dtype {frame[name].dtype}, expected {kind}")
         missing_values = frame[name].isna().to_numpy()
         if kind != "float" and missing_values.any():  # NaN floats are reported by row, as not finite
             raise LogError(source, f"{_ranges(np.flatnonzero(missing_values)[:20])}: missing value in column {name!r}")
+
+
+def _check_channel_sets(frame, sets, source):
+    """Each step: its bearing's channels, all or none of the other's, the same set on every step of its axis."""
+
+    def rows(axis, step):
+        return _where(frame, ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy())
+
+    first_of_axis = {}
+    for (axis, step, *_), channels in sets.items():
+        own = axis_channels(axis)
+        other = AXIAL_CHANNELS if own is RADIAL_CHANNELS else RADIAL_CHANNELS
+        absent = [name for name in own if name not in channels]
+        if absent:
+            bearing = "axial" if own is AXIAL_CHANNELS else "radial"
+            raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(absent)} (a step exciting {axis} "
+                                   f"carries the {len(own)} {bearing} channels; the other bearing's are optional)")
+        partial = [name for name in other if name not in channels]
+        if 0 < len(partial) < len(other):
+            raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(partial)} (the other bearing's "
+                                   f"channels are optional, but all or none of them)")
+        if axis not in first_of_axis:
+            first_of_axis[axis] = (step, channels)
+        elif channels != first_of_axis[axis][1]:
+            first_step, first = first_of_axis[axis]
+            extra = sorted(channels ^ first, key=CHANNELS.index)
+            raise LogError(source, f"{rows(axis, step)}: carries other channels than step {first_step} of {axis} "
+                                   f"(differing: {', '.join(extra)}); every step of an axis carries the same channels")
 
 
 def validate_identification_log(frame, source):
@@ -271,13 +353,19 @@ def validate_identification_log(frame, source):
         wrong dtype; an axis or channel is unknown; a value is not finite;
         ``step < 0``, ``frequency_hz <= 0``, ``amplitude_a <= 0``,
         ``noise_std < 0`` or ``attempts < 1``; the excited axis' ``U2`` is 0
-        (zero excitation); an (axis, step) has a duplicate
-        or missing channel, or rows disagreeing on frequency, amplitude or
-        attempts; or an axis' frequency grid does not strictly increase with step.
+        (zero excitation); an (axis, step) has a duplicate channel, lacks one
+        of its bearing's channels (`axis_channels`), carries part of the other
+        bearing's, or carries other channels than the excited axis' first step;
+        rows of an (axis, step) disagree on frequency, amplitude or attempts;
+        or an axis' frequency grid does not strictly increase with step.
+        With a ``level`` column: ``level < 0``, or a repeated step (level > 0)
+        without its level-0 step at the same frequency.
     """
     frame = _plain_columns(frame)
     _check_columns(frame, source)
     frame = frame.reset_index(drop=True)
+    if "level" not in frame.columns:
+        frame = frame.assign(level=np.zeros(len(frame), dtype=np.int64))
     if frame.empty:
         raise LogError(source, "no rows (an identification log holds at least one step)")
     unknown_axis = ~frame["excited_axis"].isin(ALL_AXES).to_numpy()
@@ -297,39 +385,46 @@ def validate_identification_log(frame, source):
     _check_row(frame, frame["amplitude_a"].to_numpy() <= 0, source, "amplitude_a <= 0 (no excitation)")
     _check_row(frame, frame["noise_std"].to_numpy() < 0, source, "noise_std < 0", per_channel=True)
     _check_row(frame, frame["attempts"].to_numpy() < 1, source, "attempts < 1")
+    _check_row(frame, frame["level"].to_numpy() < 0, source, "level < 0 (0: the step, 1, 2, ...: repeats at lower amplitude)")
     excitation = (frame["channel"] == "U2_" + frame["excited_axis"]).to_numpy()
     silent = excitation & (np.hypot(frame["re"].to_numpy(dtype=float), frame["im"].to_numpy(dtype=float)) == 0)
     _check_row(frame, silent, source, "the excited axis' control current U2 is 0 (zero excitation: no FRF point)",
                per_channel=True)
 
-    duplicated = frame.duplicated(["excited_axis", "step", "channel"], keep=False).to_numpy()
-    _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step)", per_channel=True)
-    # unknown channels and duplicates are already rejected: a complete step has exactly one row per channel
-    grouped = frame.groupby(["excited_axis", "step"], sort=False)
-    sizes = grouped.size()
-    incomplete = sizes[sizes != len(CHANNELS)]
-    if len(incomplete):
-        axis, step = incomplete.index[0]
-        mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
-        absent = [name for name in CHANNELS if name not in set(frame.loc[mask, "channel"])]
-        raise LogError(source, f"{_where(frame, mask)}: missing channel(s) {', '.join(absent)}")
+    duplicated = frame.duplicated(["excited_axis", "step", "level", "channel"], keep=False).to_numpy()
+    _check_row(frame, duplicated, source, "duplicate channel within one (excited_axis, step, level)", per_channel=True)
+    # unknown channels and duplicates are already rejected: check each step's channel set
+    grouped = frame.groupby(["excited_axis", "step", "level"], sort=False)
+    _check_channel_sets(frame, grouped["channel"].agg(frozenset), source)
     for name in ("frequency_hz", "amplitude_a", "attempts"):
         spread = grouped[name].nunique()
         disagreeing = spread[spread > 1]
         if len(disagreeing):
-            axis, step = disagreeing.index[0]
-            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy()
+            axis, step, level = disagreeing.index[0]
+            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
             values = frame.loc[mask, name].unique()
             raise LogError(source, f"{_where(frame, mask)}: rows disagree on {name} ({', '.join(map(repr, values.tolist()))})")
 
+    steps_frame = frame.groupby(["excited_axis", "level", "step"])["frequency_hz"].first().reset_index()
+    base = steps_frame[steps_frame["level"] == 0].set_index(["excited_axis", "step"])["frequency_hz"]
+    repeats = steps_frame[steps_frame["level"] > 0]
+    if len(repeats):
+        matched = base.reindex(pd.MultiIndex.from_frame(repeats[["excited_axis", "step"]])).to_numpy()
+        orphan = ~(np.abs(matched / repeats["frequency_hz"].to_numpy() - 1) <= 1e-9)  # NaN (no level-0 step) is orphan too
+        if orphan.any():
+            axis, step, level = repeats.iloc[int(np.flatnonzero(orphan)[0])][["excited_axis", "step", "level"]]
+            mask = ((frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["level"] == level)).to_numpy()
+            raise LogError(source, f"{_where(frame, mask)}: a repeat (level {level}) needs the level-0 step of the same "
+                                   "axis and step at the same frequency")
+    level0 = (frame["level"] == 0).to_numpy()
     for axis in ALL_AXES:
-        grid = frame[frame["excited_axis"] == axis].groupby("step")["frequency_hz"].first().sort_index()
+        grid = frame[level0 & (frame["excited_axis"] == axis)].groupby("step")["frequency_hz"].first().sort_index()
         steps, frequency_hz = grid.index.to_numpy(), grid.to_numpy()
         bad = np.flatnonzero(np.diff(frequency_hz) <= 0)
         if bad.size:
             k = bad[0]
             pair = (steps[k], steps[k + 1])
-            mask = ((frame["excited_axis"] == axis) & frame["step"].isin(pair)).to_numpy()
+            mask = level0 & ((frame["excited_axis"] == axis) & frame["step"].isin(pair)).to_numpy()
             raise LogError(
                 source,
                 f"{_where(frame, mask)}: frequency grid of {axis} not strictly increasing with step "
@@ -345,7 +440,7 @@ def noise_from_scatter(frame, source="<frame>"):
     sensor, the same whatever axis is excited, so it is estimated per channel as
     the smallest, over the excited axes, of the robust second-difference scatter
 
-    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``
+    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``  (`scatter_std`)
 
     of the coefficients ``c`` along the steps (exact for complex white noise,
     where ``|d|^2`` is exponential with mean ``6 sigma^2``; a smooth response
@@ -367,21 +462,58 @@ def noise_from_scatter(frame, source="<frame>"):
     Raises
     ------
     LogError
-        If no excited axis has three steps, or a channel's scatter is 0
-        (a constant or copied channel).
+        If no excited axis has three steps, or a channel's scatter is 0 on
+        every excited axis (a constant or copied channel); an axis on which a
+        channel is constant (zero-padded) is left out of that channel's estimate.
     """
     frame = frame.sort_values(["excited_axis", "channel", "step"])
-    estimates = {}
-    for (axis, name), group in frame.groupby(["excited_axis", "channel"], sort=False):
+    estimates, logged = {}, set()
+    steps = frame if "level" not in frame.columns else frame[frame["level"] == 0]  # repeats are not neighbours
+    for (axis, name), group in steps.groupby(["excited_axis", "channel"], sort=False):
         c = group["re"].to_numpy() + 1j * group["im"].to_numpy()
         if c.size >= 3:
-            sigma = np.median(np.abs(c[2:] - 2 * c[1:-1] + c[:-2])) / np.sqrt(6 * np.log(2))
-            estimates[name] = min(estimates.get(name, np.inf), sigma)
-    missing = sorted(set(frame["channel"]) - set(estimates))
+            logged.add(name)
+            sigma = scatter_std(c)
+            if sigma > 0:  # a channel constant on one axis' run (zero padding) says nothing about its noise
+                estimates[name] = min(estimates.get(name, np.inf), sigma)
+    missing = sorted(set(frame["channel"]) - logged, key=CHANNELS.index)
     if missing:
         raise LogError(source, f"noise cannot be estimated (fewer than 3 steps on every excited axis): {', '.join(missing)}")
-    silent = sorted(name for name, sigma in estimates.items() if not sigma > 0)
+    silent = sorted(logged - set(estimates), key=CHANNELS.index)
     if silent:
-        raise LogError(source, f"channels {', '.join(silent)} do not scatter at all (constant or copied values)")
+        raise LogError(source, f"channel(s) {', '.join(silent)} do not scatter at all on any excited axis "
+                               f"(constant or copied values)")
     frame = frame.assign(noise_std=frame["channel"].map(estimates).astype(float))
     return frame.sort_index()
+
+
+def scatter_std(values, window=None):
+    """Robust standard deviation of complex white noise on a smooth sequence, from its second differences.
+
+    ``sigma = median |c[k+1] - 2 c[k] + c[k-1]| / sqrt(6 ln 2)``: for complex white
+    noise of standard deviation ``sigma`` (per complex value, ``E|n|^2 = sigma^2``)
+    the second difference has ``E|d|^2 = 6 sigma^2`` and ``|d|^2`` is exponential,
+    whose median is ``ln 2`` times its mean.
+
+    Parameters
+    ----------
+    values : complex array (n,), n >= 3
+    window : int, optional
+        None: one value for the whole sequence.  An odd number of points: a
+        running median of that many second differences, one value per point
+        (the ends take the nearest full window), for noise that changes along
+        the sequence.
+
+    Returns
+    -------
+    float or array (n,)
+    """
+    values = np.asarray(values, dtype=complex)
+    d = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / np.sqrt(6 * np.log(2))
+    if window is None:
+        return float(np.median(d))
+    half = min(window // 2, (d.size - 1) // 2)
+    padded = np.concatenate([np.full(1, d[0]), d, np.full(1, d[-1])])  # one per point: the ends repeat their neighbour
+    starts = np.clip(np.arange(values.size) - half, 0, padded.size - 2 * half - 1)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+    return np.median(windows[starts], axis=1)

@@ -50,6 +50,9 @@ class RadialBearing:
         for a non-collocated layout.
     electromagnet : ActuatorAxis
         Parameters of each of its two control axes.
+    plane_electromagnets : dict
+        ``plane -> ActuatorAxis`` where one axis differs from ``electromagnet``
+        (the ``actuator_coefficients`` effect).
     """
 
     name: str
@@ -57,11 +60,16 @@ class RadialBearing:
     sensor_position_m: float
     electromagnet: ActuatorAxis
     operating_point: dict = field(default_factory=dict)  # plane -> (position_m, control_current_a)
+    plane_electromagnets: dict = field(default_factory=dict)
+
+    def electromagnet_of(self, plane):
+        """The electromagnet of the bearing's ``x`` or ``y`` axis."""
+        return self.plane_electromagnets.get(plane, self.electromagnet)
 
     def linearize(self, plane):
         """(ki, kx) of the bearing's x or y axis at its operating point (default: the magnetic center)."""
         position, current = self.operating_point.get(plane, (0.0, 0.0))
-        return self.electromagnet.linearize(position, current)
+        return self.electromagnet_of(plane).linearize(position, current)
 
 
 @dataclass(frozen=True)
@@ -118,7 +126,7 @@ class Machine:
     @property
     def radial_electromagnets(self):
         """The electromagnet of each radial control axis, in `RADIAL_AXES` order (DX, DY, NX, NY)."""
-        return tuple(b.electromagnet for b in self.radial_bearings for _ in ("x", "y"))
+        return tuple(b.electromagnet_of(plane) for b in self.radial_bearings for plane in ("x", "y"))
 
     @property
     def sample_time_s(self):

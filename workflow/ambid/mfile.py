@@ -2,8 +2,12 @@
 
 The thesis' evaluation scripts read MATLAB matrices ``data_exc_dx`` ...
 ``data_exc_z``, one row per frequency step of the axis excited, with the
-column layout `THESIS_COLUMNS` (1-based as in MATLAB).  Columns 3-10 are the
-thesis' own layout, so its appendix formula
+column layout `THESIS_COLUMNS` (1-based as in MATLAB).  The thesis' appendix
+fixes only columns 1, 3, 5, 7 and 9, so a second layout is just as faithful
+and is read as well: a radial matrix of the 18 columns `RADIAL_COLUMNS` (the
+radial bearings' channels only) and a Z matrix of the 6 columns
+`AXIAL_COLUMNS`; the layout of each matrix is told by its width.  Columns
+3-10 are the thesis' own layout, so its appendix formula
 ``data_exc_dx(:,7)./data_exc_dx(:,3)/1e6`` gives the DX plant in m/A; positions
 are therefore written in micrometres.  Numbers are written with 17 significant
 digits by default, so every double round-trips exactly through the text.  The file is
@@ -27,6 +31,9 @@ from .machine import ALL_AXES, RADIAL_AXES
 
 __all__ = [
     "THESIS_COLUMNS",
+    "RADIAL_COLUMNS",
+    "AXIAL_COLUMNS",
+    "thesis_log",
     "write_thesis_m",
     "variable_name",
     "MFileParseError",
@@ -36,18 +43,28 @@ __all__ = [
 
 _POSITION_SCALE = 1e6  # m -> um, as in the thesis
 
-#: (channel, scale) of columns 3-22; columns 1 and 2 are frequency and amplitude.
-_LAYOUT = (
+#: (channel, scale) of columns 3-18 of the radial-only layout and 3-6 of the axial-only layout.
+_RADIAL_LAYOUT = (
     tuple((f"U2_{axis}", 1.0) for axis in RADIAL_AXES)
     + tuple((f"V2_{axis}", _POSITION_SCALE) for axis in RADIAL_AXES)
     + tuple((f"I_{side}_{axis}", 1.0) for axis in RADIAL_AXES for side in ("upper", "lower"))
-    + (("U2_Z", 1.0), ("V2_Z", _POSITION_SCALE), ("I_upper_Z", 1.0), ("I_lower_Z", 1.0))
 )
+_AXIAL_LAYOUT = (("U2_Z", 1.0), ("V2_Z", _POSITION_SCALE), ("I_upper_Z", 1.0), ("I_lower_Z", 1.0))
+#: (channel, scale) of columns 3-22 of the full layout; columns 1 and 2 are frequency and amplitude.
+_LAYOUT = _RADIAL_LAYOUT + _AXIAL_LAYOUT
+#: width -> layout (the radial-only and axial-only widths differ, so a matrix's width tells its layout)
+_LAYOUTS = {2 + len(layout): layout for layout in (_LAYOUT, _RADIAL_LAYOUT, _AXIAL_LAYOUT)}
+
+
+def _describe(layout):
+    return ("frequency [Hz]", "amplitude [A]") + tuple(f"{channel} [{'um' if scale != 1.0 else 'A'}]" for channel, scale in layout)
+
 
 #: Description of the 22 columns, in order (MATLAB column = index + 1).
-THESIS_COLUMNS = ("frequency [Hz]", "amplitude [A]") + tuple(
-    f"{channel} [{'um' if scale != 1.0 else 'A'}]" for channel, scale in _LAYOUT
-)
+THESIS_COLUMNS = _describe(_LAYOUT)
+#: The 18 columns of a radial axis' matrix in the radial-only layout, and the 6 of the Z matrix in the axial-only one.
+RADIAL_COLUMNS = _describe(_RADIAL_LAYOUT)
+AXIAL_COLUMNS = _describe(_AXIAL_LAYOUT)
 
 
 def variable_name(axis):
@@ -64,12 +81,14 @@ def _complex(value, digits=17):
 
 
 def _axis_rows(frame, axis, digits):
-    """Lines of the matrix of one excited axis, by increasing step."""
+    """Lines of the matrix of one excited axis, by increasing step (22 columns, or 18 / 6 for a partial log)."""
     part = frame[frame["excited_axis"] == axis]
     table = part.pivot(index="step", columns="channel", values=["re", "im"]).sort_index()
     per_step = part.groupby("step")[["frequency_hz", "amplitude_a"]].first().sort_index()
-    channels = [channel for channel, _ in _LAYOUT]
-    scale = np.array([scale for _, scale in _LAYOUT])
+    present = set(part["channel"])
+    layout = _LAYOUT if all(c in present for c, _ in _LAYOUT) else _AXIAL_LAYOUT if axis == "Z" else _RADIAL_LAYOUT
+    channels = [channel for channel, _ in layout]
+    scale = np.array([scale for _, scale in layout])
     coefficients = (table["re"][channels].to_numpy() + 1j * table["im"][channels].to_numpy()) * scale
     lines = []
     for (frequency_hz, amplitude_a), row in zip(per_step.to_numpy(), coefficients):
@@ -100,7 +119,11 @@ def write_thesis_m(frame, path, header_lines=(), digits=17):
     For each axis present in ``frame`` (in `ALL_AXES` order) the file assigns
     ``data_exc_<axis> = [`` ... ``];`` with one row per step: frequency [Hz]
     and amplitude [A] as reals, then the 20 channel coefficients as complex
-    literals ``re+imi`` in the `THESIS_COLUMNS` layout, positions in µm.
+    literals ``re+imi`` in the `THESIS_COLUMNS` layout, positions in µm.  A
+    log whose steps carry only their own bearing's channels is written in the
+    18-column `RADIAL_COLUMNS` and 6-column `AXIAL_COLUMNS` layout instead.
+    Repeated steps (``level`` > 0) are not written: the thesis format holds one
+    row per frequency step.
 
     Raises
     ------
@@ -108,9 +131,19 @@ def write_thesis_m(frame, path, header_lines=(), digits=17):
         If ``frame`` is not a valid identification log; nothing is written then.
     """
     validate_identification_log(frame, str(path))
-    layout = ", ".join(f"{column} {description}" for column, description in enumerate(THESIS_COLUMNS, start=1))
+    if "level" in frame.columns:  # the thesis format has one row per step: repeats at other amplitudes stay in the Parquet log
+        frame = frame[frame["level"] == 0]
+
+    def columns(names):
+        return ", ".join(f"{column} {description}" for column, description in enumerate(names, start=1))
+
     lines = [f"% {text}" for header in header_lines for text in str(header).splitlines() or [""]]
-    lines.append(f"% columns: {layout}")
+    full = all(set(CHANNELS) <= set(part["channel"]) for _, part in frame.groupby("excited_axis"))
+    if full:
+        lines.append(f"% columns: {columns(THESIS_COLUMNS)}")
+    else:
+        lines.append(f"% columns of data_exc_dx, _dy, _nx, _ny (radial bearings only): {columns(RADIAL_COLUMNS)}")
+        lines.append(f"% columns of data_exc_z (axial bearing only): {columns(AXIAL_COLUMNS)}")
     present = set(frame["excited_axis"])
     for axis in (axis for axis in ALL_AXES if axis in present):
         lines += ["", f"{variable_name(axis)} = ["] + _axis_rows(frame, axis, digits) + ["];"]
@@ -580,33 +613,39 @@ def _read_text(path):
     return text.removeprefix("\ufeff")
 
 
-def _check_thesis_matrix(name, matrix, path):
-    """22 columns, frequency and amplitude real."""
-    n_columns = len(THESIS_COLUMNS)
-    if matrix.values.shape[1] != n_columns:
-        line, column = matrix.positions[0][0]
-        raise MFileParseError(
-            path, line, column, f"{name} has {matrix.values.shape[1]} columns, the thesis layout has {n_columns}"
-        )
-    complex_rows, complex_columns = np.nonzero(matrix.values[:, :2].imag)
+def _layout_of(name, values, path, position):
+    """The layout of one matrix from its width; frequency and amplitude must be real."""
+    axis = _VARIABLES[name]
+    widths = (len(THESIS_COLUMNS), len(AXIAL_COLUMNS) if axis == "Z" else len(RADIAL_COLUMNS))
+    if values.shape[1] not in widths:
+        own = "the axial-only layout has 6 (Z's channels)" if axis == "Z" else "the radial-only layout has 18 (the radial bearings' channels)"
+        message = f"{name} has {values.shape[1]} columns; the thesis layout has 22 (all channels), {own}"
+        raise _matrix_error(path, position, 0, 0, message)
+    complex_rows, complex_columns = np.nonzero(values[:, :2].imag)
     if complex_rows.size:
         row, col = int(complex_rows[0]), int(complex_columns[0])
-        line, column = matrix.positions[row][col]
-        value = matrix.values[row, col]
-        message = f"{name} row {row + 1}: column {col + 1} ({THESIS_COLUMNS[col]}) must be real, found {value}"
-        raise MFileParseError(path, line, column, message)
+        message = f"{name} row {row + 1}: column {col + 1} ({THESIS_COLUMNS[col]}) must be real, found {values[row, col]}"
+        raise _matrix_error(path, position, row, col, message)
+    return _LAYOUTS[values.shape[1]]
 
 
-def _step_records(axis, values):
-    """`identification_frame` records of one axis' (steps, 22) thesis matrix, back to SI units."""
-    index = {channel: k for k, channel in enumerate(CHANNELS)}
-    order = [index[channel] for channel, _ in _LAYOUT]
-    scale = np.array([scale for _, scale in _LAYOUT])
+def _matrix_error(path, position, row, col, message):
+    """`MFileParseError` at the element's line and column when known (a ``.m``), else a `LogError` (a ``.mat``)."""
+    if position is None:
+        return LogError(path, message)
+    line, column = position(row, col)
+    return MFileParseError(path, line, column, message)
+
+
+def _step_records(axis, values, layout):
+    """`identification_frame` records of one axis' thesis matrix, back to SI units."""
+    channels = [channel for channel, _ in layout]
+    scale = np.array([scale for _, scale in layout])
     records = []
     for step, row in enumerate(values):
-        coefficients = np.zeros(len(CHANNELS), dtype=np.complex128)
-        coefficients.real[order] = row[2:].real / scale  # parts divided separately, each correctly rounded
-        coefficients.imag[order] = row[2:].imag / scale
+        coefficients = np.zeros(len(channels), dtype=np.complex128)
+        coefficients.real = row[2:].real / scale  # parts divided separately, each correctly rounded
+        coefficients.imag = row[2:].imag / scale
         records.append(
             {
                 "excited_axis": axis,
@@ -614,14 +653,66 @@ def _step_records(axis, values):
                 "frequency_hz": float(row[0].real),
                 "amplitude_a": float(row[1].real),
                 "attempts": 1,
+                "channels": channels,
                 "coefficients": coefficients,
-                "noise_std": np.zeros(len(CHANNELS)),
+                "noise_std": np.zeros(len(channels)),
             }
         )
     return records
 
 
-def read_thesis_m(path):
+def _without_padding(name, values, layout, notes):
+    """A full-width matrix whose other bearing's columns are exactly 0 on every step: those columns are padding."""
+    if layout is not _LAYOUT:
+        return values, layout
+    axis = _VARIABLES[name]
+    own = _AXIAL_LAYOUT if axis == "Z" else _RADIAL_LAYOUT
+    other = [2 + k for k, (channel, _) in enumerate(_LAYOUT) if (channel, _) not in own]
+    if values.shape[0] and not np.any(values[:, other]):
+        notes.append(f"{name}: the other bearing's {len(other)} columns are 0 on every step (padding): left out")
+        keep = [0, 1] + [2 + k for k, entry in enumerate(_LAYOUT) if entry in own]
+        return values[:, keep], own
+    return values, layout
+
+
+def thesis_log(matrices, path, positions=None, notes=None):
+    """The identification log of thesis matrices ``data_exc_<axis>`` (from a ``.m`` or a ``.mat`` file).
+
+    Parameters
+    ----------
+    matrices : dict of str to array (steps, columns)
+        Variable name -> matrix, in the full layout (`THESIS_COLUMNS`) or the
+        radial-only / axial-only one (`RADIAL_COLUMNS`, `AXIAL_COLUMNS`),
+        told apart by width.  Empty matrices mean no steps of that axis.
+    path : str
+        The file, named in errors.
+    positions : dict, optional
+        Variable name -> callable ``(row, column) -> (line, column)`` of an
+        element in the text, for errors at file:line:column.
+    notes : list, optional
+        Receives one line per conversion decision (padding left out).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The validated identification log, SI units.
+    """
+    notes = [] if notes is None else notes
+    records = []
+    for name, values in matrices.items():
+        if values.size == 0:
+            continue
+        layout = _layout_of(name, values, path, (positions or {}).get(name))
+        values, layout = _without_padding(name, values, layout, notes)
+        records += _step_records(_VARIABLES[name], values, layout)
+    if not records:
+        raise LogError(path, "no data: the file assigns no non-empty data_exc_* matrix")
+    frame = identification_frame(records)
+    validate_identification_log(frame, path)
+    return frame
+
+
+def read_thesis_m(path, notes=None):
     """Read a thesis-style ``.m`` file back into an identification log.
 
     Parameters
@@ -629,6 +720,8 @@ def read_thesis_m(path):
     path : str or Path
         A file as written by `write_thesis_m` (or by hand in its grammar, see
         `parse_thesis_m`), UTF-8.
+    notes : list, optional
+        Receives a line per conversion decision (see Notes).
 
     Returns
     -------
@@ -652,23 +745,26 @@ def read_thesis_m(path):
     index within the axis' matrix (a log with gaps in its steps comes back
     renumbered), ``attempts`` is 1 and ``noise_std`` is 0.0 — the format has no
     noise estimate, and 0.0 (not NaN, which the log contract refuses) marks it
-    absent.  An empty matrix ``[]`` means no steps for that axis.  ``frame.attrs["source_lines"]``
-    holds, per excited axis, the line of each step (a list of each element's line for a row
-    continued over lines), so that later checks can name the line of a value.
+    absent.  An empty matrix ``[]`` means no steps for that axis.  A full-width
+    matrix whose other bearing's columns are exactly 0 on every step was padded:
+    those channels are left out (a line in ``notes``, when a list is given).
+    ``frame.attrs["source_lines"]`` holds, per excited axis of a full-width
+    (`THESIS_COLUMNS`) matrix, the line of each step (a list of each element's
+    line for a row continued over lines), so that later checks can name the
+    line and column of a value.
     """
     path = str(path)
-    records, lines = [], {}
-    for name, matrix in _parse(_read_text(path), path).items():
-        if matrix.values.size == 0:
-            continue
-        _check_thesis_matrix(name, matrix, path)
-        records += _step_records(_VARIABLES[name], matrix.values)
-        # the line of each step (of each element, for a row continued over lines), for messages downstream
-        lines[_VARIABLES[name]] = [row[0][0] if len({line for line, _ in row}) == 1 else [line for line, _ in row]
-                                   for row in matrix.positions]
-    if not records:
-        raise LogError(path, "no data: the file assigns no non-empty data_exc_* matrix")
-    frame = identification_frame(records)
-    validate_identification_log(frame, path)
-    frame.attrs["source_lines"] = lines
+    matrices = _parse(_read_text(path), path)
+
+    def position(matrix):
+        return lambda row, column: matrix.positions[row][column]
+
+    frame = thesis_log({name: m.values for name, m in matrices.items()}, path,
+                       {name: position(m) for name, m in matrices.items()}, notes)
+    frame.attrs["source_lines"] = {
+        _VARIABLES[name]: [row[0][0] if len({line for line, _ in row}) == 1 else [line for line, _ in row]
+                           for row in matrix.positions]
+        for name, matrix in matrices.items()
+        if matrix.values.ndim == 2 and matrix.values.shape[1] == len(THESIS_COLUMNS) and matrix.values.shape[0] > 0
+    }
     return frame

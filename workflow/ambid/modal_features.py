@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import scipy.linalg
 
 from .errors import ModelError
 from .machine import AXIS_LOCATION, BEARINGS, RADIAL_AXES
@@ -196,7 +197,11 @@ class ModalFeatureModel:
         self.fixed_loss = transformed(planar["loss_stiffness"]) - self.group_loss.sum(axis=0)
         self.stiffness_index = np.array([k for k, v in enumerate(self.variables) if v.kind == "stiffness"], dtype=int)
         self.damping_index = np.array([k for k, v in enumerate(self.variables) if v.kind == "damping"], dtype=int)
-        self.n_modes = structural.retained_modes
+        # the retained modes and, when modes are dropped, the static correction of the dropped ones under the
+        # actuator forces (as `ambid.plant.Plant` builds them): one Ritz vector per radial bearing
+        self.n_exact = structural.retained_modes
+        self.correct = self.n_exact < planar["mass"].shape[0]
+        self.n_modes = self.n_exact + (len(structural.radial_bearings) if self.correct else 0)
         added = np.atleast_1d(np.asarray(structural.added_modal_damping or (0.0,), dtype=float))
         n_flexible = self.n_modes - RIGID_MODES
         # added damping of each flexible mode as configured (a scalar applies to all of them)
@@ -221,6 +226,8 @@ class ModalFeatureModel:
                 rotor.planar_displacement_row(bearing.sensor_position_m) @ self.to_planar,
             )
         self.axis_stiffness = dict(zip(RADIAL_AXES, zip(plant.current_stiffness, plant.position_stiffness)))
+        self.loads = np.stack([rotor.planar_displacement_row(b.actuator_position_m) @ self.to_planar
+                               for b in structural.radial_bearings], axis=1)  # unit forces in mass-normalized coordinates
         self.foundation = structural.foundation
         # identical planes are solved once
         x_axes, y_axes = ("DX", "NX"), ("DY", "NY")
@@ -249,8 +256,14 @@ class ModalFeatureModel:
         stiffness = self.fixed_stiffness + np.tensordot(factors, self.group_stiffness, axes=1)
         loss = self.fixed_loss + np.tensordot(factors, self.group_loss, axes=1)
         all_omega2, all_shapes = np.linalg.eigh(stiffness)  # LAPACK's full solver beats a subset at this size
-        shapes = all_shapes[:, : self.n_modes]
-        omega = np.sqrt(np.clip(all_omega2[: self.n_modes], 0.0, None))
+        n = self.n_exact
+        shapes = all_shapes[:, :n]
+        omega2 = all_omega2[:n]
+        if self.correct:
+            ritz_omega2, ritz = self._static_correction(all_omega2, all_shapes, stiffness)
+            shapes = np.hstack([shapes, ritz])
+            omega2 = np.concatenate([omega2, ritz_omega2])
+        omega = np.sqrt(np.clip(omega2, 0.0, None))
         flexible = np.arange(self.n_modes) >= RIGID_MODES
         loss_energy = np.einsum("ik,ij,jk->k", shapes, loss, shapes)
         added = self.base_added.copy()
@@ -260,6 +273,20 @@ class ModalFeatureModel:
         safe = np.where(flexible, omega, 1.0)
         damping = np.where(flexible, loss_energy / safe + 2 * zeta_added * omega, 0.0)
         return _Modes(omega, shapes, damping, all_omega2, all_shapes, loss, loss_energy, zeta_added)
+
+    def _static_correction(self, all_omega2, all_shapes, stiffness, reference=None):
+        """Rayleigh-Ritz in the span of the dropped modes' static deflections under the loads (`Rotor.planar_modes`).
+
+        ``reference`` (shapes of an earlier call) fixes each vector's sign, for finite differences.
+        """
+        n = self.n_exact
+        dropped = all_shapes[:, n:]
+        basis = scipy.linalg.orth(dropped @ ((dropped.T @ self.loads) / all_omega2[n:, None]))
+        ritz_omega2, vectors = np.linalg.eigh(basis.T @ stiffness @ basis)
+        ritz = basis @ vectors
+        if reference is not None:
+            ritz = ritz * np.where(np.sum(ritz * reference, axis=0) < 0, -1.0, 1.0)
+        return ritz_omega2, ritz
 
     def _plane_system(self, plane, modes):
         """M, D, K, B (n_q, 2), C (2, n_q) of one plane: modal rotor coordinates, then the two housings."""
@@ -346,9 +373,12 @@ class ModalFeatureModel:
 
         Returns ``d_omega2`` (n_vars, n_modes), ``d_shapes`` (n_vars, 2 N, n_modes)
         and ``d_damping`` (n_vars, n_modes), the change of the modal damping
-        ``eta_k omega_k + 2 zeta_k omega_k``.
+        ``eta_k omega_k + 2 zeta_k omega_k``.  The static-correction vectors are
+        differentiated by central differences (a full eigen-solve per variable and
+        side; they depend on every dropped mode).
         """
         n_vars, n = len(self.variables), self.n_modes
+        exact = self.n_exact
         omega, shapes = modes.omega, modes.shapes
         d_omega2 = np.zeros((n_vars, n))
         d_shapes = np.zeros((n_vars, shapes.shape[0], n))
@@ -356,12 +386,24 @@ class ModalFeatureModel:
         flexible = np.arange(n) >= RIGID_MODES
         safe = np.where(flexible, omega, 1.0)
         if self.stiffness_index.size:
-            coupling = modes.all_shapes.T @ self.group_stiffness @ shapes  # (p, all modes j, retained k)
-            gap = modes.all_omega2[:n][None, :] - modes.all_omega2[:, None]  # omega_k^2 - omega_j^2
-            usable = flexible[None, :] & (np.arange(gap.shape[0])[:, None] != np.arange(n)[None, :])
+            coupling = modes.all_shapes.T @ self.group_stiffness @ shapes[:, :exact]  # (p, all modes j, retained k)
+            gap = modes.all_omega2[:exact][None, :] - modes.all_omega2[:, None]  # omega_k^2 - omega_j^2
+            usable = flexible[None, :exact] & (np.arange(gap.shape[0])[:, None] != np.arange(exact)[None, :])
             weights = np.where(usable, coupling / np.where(usable, gap, 1.0), 0.0)
-            shape_change = modes.all_shapes @ weights
-            d_omega2[self.stiffness_index] = np.diagonal(coupling[:, :n, :], axis1=1, axis2=2)
+            shape_change = np.zeros((self.stiffness_index.size, shapes.shape[0], n))
+            shape_change[:, :, :exact] = modes.all_shapes @ weights
+            d_omega2[self.stiffness_index, :exact] = np.diagonal(coupling[:, :exact, :], axis1=1, axis2=2)
+            if self.correct:
+                stiffness = modes.all_shapes @ np.diag(modes.all_omega2) @ modes.all_shapes.T
+                for p, group in enumerate(self.group_stiffness):
+                    step = 1e-6
+                    sides = []
+                    for sign in (1.0, -1.0):
+                        changed = stiffness + sign * step * group
+                        values, vectors = np.linalg.eigh(changed)
+                        sides.append(self._static_correction(values, vectors, changed, reference=shapes[:, exact:]))
+                    d_omega2[self.stiffness_index[p], exact:] = (sides[0][0] - sides[1][0]) / (2 * step)
+                    shape_change[p, :, exact:] = (sides[0][1] - sides[1][1]) / (2 * step)
             d_shapes[self.stiffness_index] = shape_change
             d_loss = (np.sum(shapes[None] * (self.group_loss @ shapes), axis=1)
                       + 2 * np.sum(shape_change * (modes.loss @ shapes)[None], axis=1))

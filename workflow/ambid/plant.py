@@ -52,8 +52,21 @@ class SecondOrderModel:
     speed_rad_s: float
 
     def frequency_response(self, frequency_hz):
-        """Structural FRF, array (n_freq, n_out, n_in), by one batched linear solve."""
-        w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)[:, None, None]
+        """Structural FRF, array (n_freq, n_out, n_in).
+
+        By modal superposition of the first-order form, ``C V (jw - Lambda)^-1 V^-1 B``
+        (one eigen-decomposition, then O(n) per frequency); by a batched linear solve
+        of the dynamic stiffness when the eigenvectors are ill-conditioned (a
+        nearly defective system).
+        """
+        frequency_hz = np.asarray(frequency_hz, dtype=float)
+        a, b, c = self.state_space()
+        poles, vectors = scipy.linalg.eig(a)
+        if np.linalg.cond(vectors) < 1e8:
+            left, right = c @ vectors, np.linalg.solve(vectors, b.astype(complex))
+            resolvent = 1.0 / (2j * np.pi * frequency_hz[:, None] - poles[None, :])
+            return np.einsum("ok,fk,ki->foi", left, resolvent, right, optimize=True)
+        w = 2 * np.pi * frequency_hz[:, None, None]
         dynamic = self.stiffness - w**2 * self.mass + 1j * w * (self.damping + self.speed_rad_s * self.gyroscopic)
         return self.output_matrix @ np.linalg.solve(dynamic, self.input_matrix.astype(complex))
 
@@ -79,20 +92,29 @@ class Plant:
     ----------
     machine : ambid.machine.Machine
 
+    static_correction : bool
+        Append to the retained modes the static deflection of the dropped ones
+        under the actuator forces (`ambid.rotor.Rotor.planar_modes`); False keeps
+        the plain truncation (as `ambid.modal_features` does).
+
     Notes
     -----
     Structure effects are applied first (they change the machine), then the
     modal model is built with ``machine.retained_modes`` planar modes.
     """
 
-    def __init__(self, machine):
+    def __init__(self, machine, static_correction=True):
         structure, self.input_effects, self.output_effects = split_effects(machine.effects)
         for effect in structure:
             machine = effect.apply(machine)
         self.machine = machine
         self.rotor = machine.rotor
-        self.modes = self.rotor.planar_modes(machine.retained_modes)
+        self.static_correction = static_correction
+        # the lowest modes plus the static correction of the dropped ones under the actuator forces
+        loads = tuple(b.actuator_position_m for b in machine.radial_bearings) if static_correction else ()
+        self.modes = self.rotor.planar_modes(machine.retained_modes, loads)
         self.radial = self._radial_model()
+        self._responses = {}  # structural responses by frequency grid, shared with `with_signal_effects` copies
 
     def with_signal_effects(self, effects):
         """A copy with input- and output-side ``effects`` added, sharing the structural model.
@@ -107,12 +129,36 @@ class Plant:
         plant.output_effects = list(self.output_effects) + outputs
         return plant
 
+    def with_structure_effect(self, effect):
+        """A new plant with one more structure effect, applied on top of this plant's structure.
+
+        The effects already applied are not applied again, and a rotor the new
+        effect leaves unchanged (damping, sensors, housings) keeps its modes.
+        """
+        if effect.location != "structure":
+            raise ModelError(f"{effect.name} is not a structure effect: use with_signal_effects")
+        applied = replace(self.machine, effects=(effect, *self.input_effects, *self.output_effects))
+        plant = Plant(applied, static_correction=self.static_correction)
+        plant.machine = replace(plant.machine, effects=self.machine.effects + (effect,))
+        return plant
+
     def at_speed(self, speed_rad_s):
         """A copy spinning at ``speed_rad_s`` (what the ``gyroscopic`` effect does), sharing the modal model."""
         plant = copy.copy(self)
         plant.machine = replace(self.machine, speed_rad_s=float(speed_rad_s))
         plant.radial = replace(self.radial, speed_rad_s=float(speed_rad_s))
+        plant._responses = {}
         return plant
+
+    def cached(self, key, compute):
+        """``compute()`` once per ``key`` for this structure (shared by the copies `with_signal_effects` makes).
+
+        ``key`` must name everything the value depends on beyond the structure
+        (frequency grid, effects); the value must not be modified by the caller.
+        """
+        if key not in self._responses:
+            self._responses[key] = compute()
+        return self._responses[key]
 
     # ------------------------------------------------------------------ model
     def _modal_damping(self):
@@ -202,7 +248,7 @@ class Plant:
     def radial_frequency_response(self, frequency_hz):
         """Radial plant P(jw), array (n_freq, 4, 4) [m/A]; rows outputs, columns inputs (DX, DY, NX, NY)."""
         frequency_hz = np.asarray(frequency_hz, dtype=float)
-        response = self.radial.frequency_response(frequency_hz)
+        response = self.cached(("radial", frequency_hz.tobytes()), lambda: self.radial.frequency_response(frequency_hz))
         axes = list(RADIAL_AXES)
         inp = self._effect_matrices(self.input_effects, frequency_hz, axes)
         out = self._effect_matrices(self.output_effects, frequency_hz, axes)

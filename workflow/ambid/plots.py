@@ -4,6 +4,7 @@ Figures are written with blank metadata (no creation date, no software
 version) so the same inputs give byte-identical files.
 """
 
+import textwrap
 import matplotlib
 import matplotlib.colors
 import matplotlib.ticker
@@ -372,8 +373,13 @@ def ledger(table, title):
         axis.semilogy(x, np.maximum(overall["excess"], 1e-3), "o-", lw=2.2, label=f"{run}: overall")
     axis.plot([], [], color="0.75", lw=0.7, label="single channels")
     axis.set_xticks(x)
-    axis.set_xticklabels(variants, rotation=20)
-    axis.set_ylabel("excess over the noise floor (chi2 per point - 1)")
+    if "diagnosis" in table.columns:  # what the diagnosis of each variant says, under its name
+        said = table.drop_duplicates("variant").set_index("variant")["diagnosis"]
+        labels = [f"{v}\n" + textwrap.fill(str(said.get(v, "")), 22) for v in variants]
+    else:
+        labels = variants
+    axis.set_xticklabels(labels, fontsize=7)
+    axis.set_ylabel("excess over the floor (chi2 per point - 1)")
     axis.grid(True, which="both", alpha=0.3)
     axis.legend(fontsize=8)
     axis.set_title(title)

@@ -218,6 +218,13 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     def table(path, text=""):
         return Table(read_tsv(root / path), text, f"results/{machine}/{path}")
 
+    def findings(path, text):
+        """A stage's findings (`ambid.findings`) as a table, or nothing when it has none."""
+        found = findings_frame(read_findings(root / path)) if (root / path).exists() else None
+        if found is None or found.empty:
+            return []
+        return [Table(found.drop(columns=["value"]), text, f"results/{machine}/{path}")]
+
     sections = []
     summary = Section("Summary")
     sections.append(summary)
@@ -239,13 +246,24 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         sections.append(Section(f"Calibration {run} (thesis ch. 3, 6.1)", blocks))
     for run in identification_runs:
         base = f"frf/{run}"
+        floors = read_tsv(root / base / "floor.tsv")
+        summary.blocks.append(Text(f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides "
+                                   "by): " + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
+                                                       for family, part in floors.groupby("family", sort=False)) + "."))
         sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
             table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
                                               "low-frequency compliance and coil-current ratio over the model's (a unit "
                                               "error is 10^3 or 10^6 off; beyond 30x the run stops)."),
             _findings(root, f"{base}/findings.tsv", machine, f"the log of run `{run}` (outlier steps, before the FRF)")] + [
             Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
-            for name in ("radial_siso", "radial_mimo", "axial")]))
+            for name in ("radial_siso", "radial_mimo", "axial")] + [
+            table(f"{base}/floor.tsv", "The FRF's systematic floor per channel family and band and how it was measured: "
+                                       "`two_level` from steps repeated at a lower amplitude (the force law's amplitude-"
+                                       "dependent error), `smooth_fit` from the scatter between neighbouring steps beyond "
+                                       "the noise, `fallback` the documented constant (config `frf.fallback_floor`) where "
+                                       "the data cannot tell; `relative_median` / `relative_p90` of systematic_std / |G|, "
+                                       "`noise_scale` where the scatter shows the logged noise overstated.")]
+            + findings(f"{base}/findings.tsv", "What the FRF stage found.")))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
@@ -304,7 +322,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
             sections.append(Section(f"{variant} against {run}", [
                 Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
                 Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
+                *findings(f"{compare}/findings.tsv", "What the comparison found."),
                 Text(caption("diagnosis", run=run, variant=variant)),
+                *findings(f"{diagnose}/findings.tsv", "What the diagnosis found: effects missing, parameters the data "
+                                                      "move, at a bound or undetermined, misfit no effect explains."),
                 Text(diagnosis),
                 Figure(root / diagnose / "figures/fingerprint.png",
                        caption("diagnose_fingerprint", run=run, variant=variant))], level=3))

@@ -34,6 +34,7 @@ from .effects import effect_from_config, split_effects
 from .errors import ConfigError, ModelError
 from .machine import ALL_AXES, machine_from_config
 from .plant import Plant
+from .rig_effects import apply_controller_effects, rig_effect_from_config
 from .sampled_loop import closed_loop_matrix, controller_matrices, coupling_matrix, sampled_system
 
 __all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]
@@ -99,13 +100,18 @@ def _per_axis(mapping, path, default=0.0, width=None):
 def rig_from_config(rig_config, machine_config, source=None):
     """Build a `Rig` from its YAML mapping and the nominal machine's.
 
-    ``truth.effects`` are added to the nominal machine's own effects.
+    ``truth.effects`` are added to the nominal machine's own effects;
+    ``truth.unmodelled`` are effects outside the model's library
+    (`ambid.rig_effects`): the controller ones change the rig's controllers,
+    the others join its signal chains.
     """
     try:
         truth = rig_config.get("truth") or {}
         machine = machine_from_config(machine_config, name=rig_config.get("machine"))
         hidden = [effect_from_config(spec, f"truth.effects[{i}]", machine) for i, spec in enumerate(truth.get("effects") or ())]
-        machine = machine.with_effects(list(machine.effects) + hidden)
+        unmodelled = [rig_effect_from_config(spec, f"truth.unmodelled[{i}]") for i, spec in enumerate(truth.get("unmodelled") or ())]
+        machine, unmodelled = apply_controller_effects(machine, unmodelled)
+        machine = machine.with_effects(list(machine.effects) + hidden + unmodelled)
         imperfections = RigImperfections(
             magnetic_center_offset_m=_per_axis(truth.get("magnetic_center_offset_m"), "truth.magnetic_center_offset_m"),
             gravity_m_s2=float(truth.get("gravity_m_s2", 9.81)),
@@ -133,7 +139,9 @@ class SimulationState:
 
     ``setpoint_m`` and ``bias_a`` (5, B) are what the PLC commands per member: the
     position set points and the bias currents (the amplifiers deliver them with
-    the rig's bias error).
+    the rig's bias error).  ``held_a`` (5, B) is the control current commanded in
+    the cycle before, which the amplifiers hold when the PLC samples the coil
+    currents at the start of a cycle (with the positions, before its new output).
     """
 
     plant: np.ndarray  # (n_states, B)
@@ -142,11 +150,12 @@ class SimulationState:
     step: int
     setpoint_m: np.ndarray  # (5, B)
     bias_a: np.ndarray  # (5, B) commanded bias currents
+    held_a: np.ndarray  # (5, B) control currents of the cycle before
 
     def take(self, members):
         """Keep only the given batch members (compaction of finished ones)."""
         return SimulationState(self.plant[:, members], self.controller[:, members], self.sensor_buffer[:, :, members],
-                               self.step, self.setpoint_m[:, members], self.bias_a[:, members])
+                               self.step, self.setpoint_m[:, members], self.bias_a[:, members], self.held_a[:, members])
 
 
 class RigModel:
@@ -167,6 +176,7 @@ class RigModel:
         self.setpoint_m = np.zeros(N_AXES) if setpoint_m is None else np.asarray(setpoint_m, dtype=float)
         plant = Plant(machine)
         self.plant = plant
+        machine = plant.machine  # with the structure effects applied (the actuators' parameters among them)
         nominal = [*machine.radial_electromagnets, machine.axial_electromagnet]
         self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
         self.true_bias_a = self.nominal_bias_a * (1 + imp.bias_current_error)
@@ -327,6 +337,7 @@ class RigModel:
             0,
             np.repeat(self.setpoint_m[:, None], batch, axis=1),
             np.repeat(self.nominal_bias_a[:, None], batch, axis=1),
+            np.repeat(inputs[:N_AXES, None], batch, axis=1),
         )
 
     def residual_force(self, force_current, position, bias_a=None):
@@ -388,7 +399,10 @@ class RigModel:
         command = self.ctrl_c @ state.controller + self.ctrl_d @ error + excitation_a
         state.controller = self.ctrl_a @ state.controller + self.ctrl_b @ error
         outputs = self.state_outputs @ x
-        coil = outputs[:N_AXES] + self.coil_input @ command
+        # the coil currents are sampled at the start of the cycle, with the positions: the amplifiers still hold the
+        # command of the cycle before (an ideal amplifier's current is one cycle behind U2, as a fast one's is)
+        coil = outputs[:N_AXES] + self.coil_input @ state.held_a
+        state.held_a = command
         inputs = np.empty((self.input_matrix.shape[1], batch))
         inputs[:N_AXES] = command
         inputs[2 * N_AXES] = 1.0

@@ -512,25 +512,51 @@ class Rotor:
         )
 
     # ------------------------------------------------------------------ modes
-    def planar_modes(self, n_modes=None):
-        """Free-free undamped bending modes of one plane (mass-normalized).
+    def planar_modes(self, n_modes=None, static_loads_m=()):
+        """Free-free undamped bending modes of one plane (mass-normalized), with static correction.
 
         Parameters
         ----------
         n_modes : int, optional
             Number of lowest modes to return (all if omitted).  The two rigid-body
             modes (translation and tilt) come first.
+        static_loads_m : sequence of float
+            Axial positions of point forces (the actuators).  With fewer than all
+            modes, the modes dropped still bend the rotor statically under those
+            forces; one Ritz vector per load, the static deflection of the dropped
+            modes ``sum_{k > n} psi_k psi_k^T f / w_k^2`` (residual flexibility),
+            is appended after a Rayleigh-Ritz solve in their span, so the reduced
+            model's static response to the loads is exact and its error below
+            the first dropped mode is of order ``(w / w_(n+1))^2`` of what the
+            plain truncation leaves.
 
         Returns
         -------
         PlanarModes
+            ``n_modes`` eigenmodes, then the static-correction vectors (their
+            Rayleigh-Ritz frequencies lie above the retained modes').
         """
+        key = ("modes", n_modes, tuple(static_loads_m))
+        if key in self._cache:  # a rotor is immutable: variants that change only damping or sensors reuse its modes
+            return self._cache[key]
         planar = self.planar_matrices()
         n = planar["mass"].shape[0]
-        subset = None if n_modes is None or n_modes >= n else (0, n_modes - 1)
+        truncated = n_modes is not None and n_modes < n
+        subset = (0, n_modes - 1) if truncated and not static_loads_m else None
         eigval, shapes = scipy.linalg.eigh(planar["stiffness"], planar["mass"], subset_by_index=subset)
         omega = np.sqrt(np.clip(eigval, 0.0, None))
-        return PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
+        if truncated and static_loads_m:
+            dropped, dropped_omega = shapes[:, n_modes:], omega[n_modes:]
+            forces = np.stack([self.planar_displacement_row(z) for z in static_loads_m], axis=1)
+            residual = dropped @ ((dropped.T @ forces) / dropped_omega[:, None] ** 2)
+            basis = scipy.linalg.orth(residual)
+            ritz_values, ritz_vectors = scipy.linalg.eigh(basis.T @ planar["stiffness"] @ basis, basis.T @ planar["mass"] @ basis)
+            omega = np.concatenate([omega[:n_modes], np.sqrt(np.clip(ritz_values, 0.0, None))])
+            shapes = np.hstack([shapes[:, :n_modes], basis @ ritz_vectors])
+        elif truncated:
+            omega, shapes = omega[:n_modes], shapes[:, :n_modes]
+        self._cache[key] = PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
+        return self._cache[key]
 
     def modal_loss_factors(self, modes):
         """Strain-energy weighted loss factor of each mode.

@@ -37,6 +37,7 @@ __all__ = ["SIGNAL_EFFECTS", "SampledSystem", "sampled_system", "controller_matr
 
 #: Input- and output-side effects the sampled loop represents (every one in the effect library).
 SIGNAL_EFFECTS = ("amplifier_lowpass", "eddy_current", "cross_coupling", "sensor_lowpass", "delay")
+RIG_CHAINS = ("coil", "force", "sensor", "output_matrix")  # where the rig-only effects (ambid.rig_effects) sit
 
 
 def zoh_discretize(a, b, time_s):
@@ -48,11 +49,12 @@ def zoh_discretize(a, b, time_s):
     return transition[:n, :n], transition[:n, n:]
 
 
-def _diagonal_chains(effects, kinds, axes):
-    """Block-diagonal MIMO system of the per-axis SISO chains of the ``kinds`` effects acting on each axis."""
+def _diagonal_chains(effects, kinds, axes, chain):
+    """Block-diagonal MIMO system of the per-axis SISO chains of the ``kinds`` effects acting on each axis, with the
+    rig-only effects (`ambid.rig_effects`) of rig chain ``chain``."""
     n_axes = len(axes)
-    blocks = [series_state_space([e.siso_state_space() for e in effects if e.name in kinds and e.acts_on(axis)])
-              for axis in axes]
+    chained = [e for e in effects if e.name in kinds or getattr(e, "rig_chain", None) == chain]
+    blocks = [series_state_space([e.siso_state_space() for e in chained if e.acts_on(axis)]) for axis in axes]
     a = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
     b = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
     c = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
@@ -61,10 +63,12 @@ def _diagonal_chains(effects, kinds, axes):
 
 
 def coupling_matrix(effects, side, axes):
-    """The static cross-coupling matrix of the ``side`` (input: forces, output: sensors) on ``axes``."""
+    """The static cross-coupling matrix of the ``side`` (input: forces, output: sensors) on ``axes``; on the output
+    side with the rig-only sensor gains (`ambid.rig_effects`)."""
     matrix = np.eye(len(axes))
     for effect in effects:
-        if effect.name == "cross_coupling" and effect.side == side:
+        if (effect.name == "cross_coupling" and effect.side == side) or (
+                side == "output" and getattr(effect, "rig_chain", None) == "output_matrix"):
             matrix = effect.matrix(axes) @ matrix
     return matrix
 
@@ -177,15 +181,16 @@ def sampled_system(mass, damping, free_stiffness, actuator_shape, sensor_shape, 
         For a signal effect the sampled loop does not represent.
     """
     _, input_effects, output_effects = split_effects(effects)
-    unknown = [e.name for e in list(input_effects) + list(output_effects) if e.name not in SIGNAL_EFFECTS]
+    unknown = [e.name for e in list(input_effects) + list(output_effects)
+               if e.name not in SIGNAL_EFFECTS and getattr(e, "rig_chain", None) not in RIG_CHAINS]
     if unknown:
         raise ModelError(f"effect {unknown[0]!r} has no sampled-data form (known: {', '.join(SIGNAL_EFFECTS)})")
     axes = tuple(axes)
     n_axes = len(axes)
     ki, kx = np.asarray(current_stiffness, dtype=float), np.asarray(position_stiffness, dtype=float)
-    ai, bi, ci, di = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS), axes)
-    ae, be, ce, de = _diagonal_chains(input_effects, {"eddy_current"}, axes)
-    ao, bo, co, do = _diagonal_chains(output_effects, {"sensor_lowpass"}, axes)
+    ai, bi, ci, di = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS), axes, "coil")
+    ae, be, ce, de = _diagonal_chains(input_effects, {"eddy_current"}, axes, "force")
+    ao, bo, co, do = _diagonal_chains(output_effects, {"sensor_lowpass"}, axes, "sensor")
     coupling = coupling_matrix(input_effects, "input", axes)
     output_coupling = coupling_matrix(output_effects, "output", axes)
     constant = np.zeros(n_axes) if constant_force is None else constant_force

@@ -1,6 +1,7 @@
 """Rule `compare`: one model variant against one identification run -> errors per channel, frequency and band, figures."""
 
-from ambid.compare import channel_errors, measured_channels, model_response, summarize
+from ambid.compare import channel_errors, measured_channels, model_response, summarize, with_enough_modes
+from ambid.findings import write_findings
 from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -12,10 +13,13 @@ machine_name, run, variant = snakemake.wildcards.machine, snakemake.wildcards.ru
 settings = snakemake.params.settings
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_name, source=snakemake.input.machine)
 table, _ = read_parquet(snakemake.input.frf, kind="frf")
-measured = measured_channels(table, settings["position_floor"], settings["current_floor"])
+measured = measured_channels(table)
+machine, findings = with_enough_modes(machine, measured, "compare")
+write_findings(findings, snakemake.output.findings)
 model = model_response(Plant(machine), measured)
 errors = channel_errors(measured, model)
-summary = summarize(errors, list(settings["bands_hz"]) + [float("inf")])
+bands = settings.get("bands_hz")
+summary = summarize(errors, None if bands is None else list(bands) + [float("inf")])
 write_parquet(errors, snakemake.output.errors, kind="compare_errors",
               units={"frequency_hz": "Hz", "magnitude_error_db": "dB", "phase_error_deg": "deg", "normalized_error": "-"},
               metadata={"machine": machine_name, "run": run, "variant": variant, **settings})

@@ -1,7 +1,12 @@
-"""Rule `diagnose`: the effect a model variant lacks, from one identification run -> ranking, explanation, figure."""
+"""Rule `diagnose`: the effects a model variant lacks, from one identification run -> verdict, ranking, joint refit, figure."""
 
-from ambid.compare import measured_channels, model_response
-from ambid.diagnose import diagnose, diagnosis_report, plant_with_effect
+import pandas as pd
+
+from ambid.compare import measured_channels, model_response, with_enough_modes
+from ambid.diagnose import JOINT_COLUMNS, DiagnoseSettings, diagnose, plant_with_effects
+from ambid.diagnosis_report import diagnosis_findings, diagnosis_report
+from ambid.errors import settings_from_mapping
+from ambid.findings import write_findings
 from ambid.io import atomic_path, read_parquet, read_yaml, rule_log, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -10,24 +15,35 @@ from ambid.plots import residual_fingerprint, save_figure
 log = rule_log(snakemake.log[0], "diagnose")
 
 machine_name, run, variant = snakemake.wildcards.machine, snakemake.wildcards.run, snakemake.wildcards.variant
-floors, bands = snakemake.params.compare, list(snakemake.params.compare["bands_hz"]) + [float("inf")]
+bands = snakemake.params.compare.get("bands_hz")
+bands = None if bands is None else list(bands) + [float("inf")]
+settings = settings_from_mapping(DiagnoseSettings, snakemake.params.settings, "diagnose")
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_name, source=snakemake.input.machine)
 table, _ = read_parquet(snakemake.input.frf, kind="frf")
-measured = measured_channels(table, floors["position_floor"], floors["current_floor"])
-settings = snakemake.params.settings
-diagnosis = diagnose(machine, measured, max_evaluations=settings["max_evaluations"], sequence_length=settings["sequence_length"])
+measured = measured_channels(table)
+machine, truncation = with_enough_modes(machine, measured, "diagnose")
+diagnosis = diagnose(machine, measured, settings=settings)
 plant = Plant(machine)
 model = model_response(plant, measured)
 candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}")
 write_tsv(candidates, snakemake.output.candidates)
+write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame(columns=list(JOINT_COLUMNS)),
+          snakemake.output.joint)
+write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=["family", "band", "points"], suffixes=("_before", "_after")),
+          snakemake.output.cells)
+write_findings(truncation + diagnosis_findings(diagnosis), snakemake.output.findings)
+write_tsv([diagnosis.summary()], snakemake.output.verdict)
 with atomic_path(snakemake.output.text) as temporary:
     temporary.write_text(text)
-log.info("\n%s", text)
+log.info("verdict %s; %d model evaluations\n%s", diagnosis.verdict, sum(f.evaluations for f in diagnosis.ranked), text)
 
-top = diagnosis.ranked[0]
-predicted = model_response(plant_with_effect(plant, top.effect), measured)
+if diagnosis.joint is not None and diagnosis.sequence:
+    label, predicted = "the joint refit", model_response(Plant(diagnosis.joint.machine), measured)
+else:
+    top = diagnosis.ranked[0]
+    label = f"{top.candidate.label} (best, {'missing' if top.missing else 'not missing'})"
+    predicted = model_response(plant_with_effects(plant, [top.effect]), measured)
 shown = [key for key in (("DX", "DX"), ("NX", "NX"), ("NX", "DX"), ("I_DX", "DX"), ("Z", "Z")) if key in measured]
-verdict = "best candidate" if diagnosis.best is not None else "best (not significant) candidate"
 save_figure(residual_fingerprint(measured, model, predicted, shown,
-                                 f"{machine_name} {run}, model {variant}: residual and the {verdict}", top.candidate.label),
+                                 f"{machine_name} {run}, model {variant}: residual ({diagnosis.verdict})", label),
             snakemake.output.fingerprint, snakemake.params.dpi)

@@ -1,62 +1,89 @@
-"""Rule `frf`: one identification run, its model-free checks -> SISO and MIMO ETFE, findings, Bode plots."""
+"""Rule `frf`: one identification run (or a user's UFF58 FRFs), its model-free checks -> SISO and MIMO ETFE, floor,
+findings, UFF58, Bode plots."""
 
 import numpy as np
 
 from ambid.errors import LogError
-from ambid.findings import write_findings
-from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
-from ambid.io import rule_log, write_parquet
-from ambid.logs import noise_from_scatter, read_identification_log
+from ambid.findings import Finding, write_findings
+from ambid.floor import FloorSettings, systematic_floor
+from ambid.frf import channel, frf_from_log, log_arrays
+from ambid.io import rule_log, write_parquet, write_tsv
+from ambid.logs import log_source, noise_from_scatter, read_identification_log
 from ambid.machine import RADIAL_AXES
-from ambid.plausibility import check_log
+from ambid.plausibility import FRF_SETTINGS, check_log
 from ambid.plots import bode_measured, save_figure
-from ambid.uff import write_uff58
+from ambid.readers import read_uff_frf
+from ambid.uff import frf_channels, write_uff58
 
 log = rule_log(snakemake.log[0], "frf")
 
-frame, info = read_identification_log(snakemake.input.log)
-metadata = info["metadata"]
-source = snakemake.params.source
-if source.get("file", "").endswith(".m") and metadata.get("original_sha256") != source["digest"]:
-    # a converted log left from another .m (Snakemake lost track of it): never let it stand for this one
-    raise LogError(snakemake.input.log, f"is not the conversion of {source['file']} as it is now (content digest "
-                                        f"{source['digest']}; converted from {metadata.get('original', 'unknown')}, digest "
-                                        f"{metadata.get('original_sha256', 'unknown')}): delete it and Snakemake converts "
-                                        "the .m again")
-if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
-    frame = noise_from_scatter(frame, snakemake.input.log)
-    log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
-             ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
-settings = snakemake.params.settings
-frame, findings = check_log(frame, log_arrays(frame), settings, snakemake.input.log, metadata.get("source_lines"),
-                            metadata.get("original"))
-for finding in findings:
-    log.warning("%s", finding.message)
-arrays = log_arrays(frame)
-siso = siso_etfe(arrays)
-mimo = mimo_etfe(arrays, source=snakemake.input.log) if settings["estimator"] == "mimo" else None
-table = frf_table(siso, mimo, current=current_etfe(arrays))
-if mimo is not None:
-    condition = mimo[3]
-    log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
+settings = {**FRF_SETTINGS, **snakemake.params.settings}
+floor_settings = FloorSettings.from_config({k: v for k, v in settings.items() if k not in FRF_SETTINGS})
+findings = []
+if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no raw log
+    source = snakemake.input.uff
+    table, provenance = read_uff_frf(source, **snakemake.params.uff_options)
+    for note in provenance["notes"]:
+        log.info("%s: %s", source, note)
+    table, floors = systematic_floor(table, {}, None, floor_settings)
+else:
+    frame, info = read_identification_log(snakemake.input.log)
+    metadata = info["metadata"]
+    user = snakemake.params.source
+    if user and user["file"] != snakemake.input.log and metadata.get("original_sha256") != user["digest"]:
+        # a converted log left from another version of the user's file (Snakemake lost track of it): never let it
+        # stand for this one
+        raise LogError(snakemake.input.log, f"is not the conversion of {user['file']} as it is now (content digest "
+                                            f"{user['digest']}; converted from {metadata.get('original', 'unknown')}, "
+                                            f"digest {metadata.get('original_sha256', 'unknown')}): delete it and "
+                                            "Snakemake converts the file again")
+    source = log_source(snakemake.input.log, info)  # errors name the user's file
+    if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
+        frame = noise_from_scatter(frame, source)
+        log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
+                 ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
+    frame, findings = check_log(frame, log_arrays(frame), settings, snakemake.input.log, metadata.get("source_lines"),
+                                metadata.get("original"))
+    for finding in findings:
+        log.warning("%s", finding.message)
+    table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
+    if mimo is not None:
+        condition = mimo[3]
+        log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
+write_tsv(floors, snakemake.output.floor)
+for row in floors.itertuples():
+    log.info("floor %s %s: %s, systematic %.3g %% median (p90 %.3g %%), noise scaled by %.3g", row.family, row.band, row.method,
+             100 * row.relative_median, 100 * row.relative_p90, row.noise_scale)
+    if "fallback" in row.method:
+        also = (f", or the step-to-step scatter beyond the noise where larger ({row.smooth_fit_points} points)"
+                if "smooth_fit" in row.method else "")
+        findings.append(Finding("frf", "note", "floor_fallback", f"{row.family} {row.band}",
+                                f"no repeated steps here: the systematic floor is the documented constant "
+                                f"(config frf.fallback_floor){also}; median {100 * row.relative_median:.3g} % of |G|",
+                                row.relative_median))
+    if row.noise_scale < 1:
+        findings.append(Finding("frf", "note", "noise_rescaled", f"{row.family} {row.band}",
+                                f"the scatter between neighbouring steps is {row.noise_scale:.2g} times the logged noise "
+                                "(the loop correlates the noise of U2 and of the outputs): the noise uses the scatter",
+                                row.noise_scale))
+write_findings(findings, snakemake.output.findings)
+estimators = sorted(set(table["estimator"]))
 write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
-                                                        "std": "m/A (A/A: current)", "condition": "-"},
+                                                        "std": "m/A (A/A: current)", "condition": "-",
+                                                        "systematic_std": "m/A (A/A: current)"},
               kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                                    "source_log": snakemake.input.log, "estimators": sorted(set(table["estimator"]))})
-uff_channels = [(a, a, *channel(table, "siso", a, a)[:2]) for a in ("Z",) if a in arrays]
-estimator_for_uff = "mimo" if mimo is not None else "siso"
-uff_channels += [(o, i, *channel(table, estimator_for_uff, o, i)[:2]) for o in RADIAL_AXES for i in RADIAL_AXES
-                 if (estimator_for_uff == "mimo" or o == i) and i in arrays]
-write_uff58(snakemake.output.uff, uff_channels, description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run} {estimator_for_uff}")
+                                    "source_log": source, "estimators": estimators})
+write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
-radial = [a for a in RADIAL_AXES if a in arrays]
+siso = set(table.loc[table["estimator"] == "siso", "output"] + "/" + table.loc[table["estimator"] == "siso", "input"])
+radial = [a for a in RADIAL_AXES if f"{a}/{a}" in siso]
+estimator = "mimo" if "mimo" in estimators else "siso"
+diagonal = [a for a in RADIAL_AXES if ((table["estimator"] == estimator) & (table["output"] == a) & (table["input"] == a)).any()]
 save_figure(bode_measured([(f"{a} (SISO)", *channel(table, "siso", a, a)) for a in radial], f"{title}: radial axes, SISO"),
             snakemake.output.radial_siso, dpi)
-estimator = "mimo" if mimo is not None else "siso"
-save_figure(bode_measured([(f"{a} ({estimator.upper()})", *channel(table, estimator, a, a)) for a in radial], f"{title}: radial axes, {estimator.upper()}"),
-            snakemake.output.radial_mimo, dpi)
-save_figure(bode_measured([("Z (SISO)", *channel(table, "siso", "Z", "Z"))] if "Z" in arrays else [], f"{title}: axial"),
+save_figure(bode_measured([(f"{a} ({estimator.upper()})", *channel(table, estimator, a, a)) for a in diagonal],
+                          f"{title}: radial axes, {estimator.upper()}"), snakemake.output.radial_mimo, dpi)
+save_figure(bode_measured([("Z (SISO)", *channel(table, "siso", "Z", "Z"))] if "Z/Z" in siso else [], f"{title}: axial"),
             snakemake.output.axial, dpi)
-write_findings(findings, snakemake.output.findings)
 log.info("FRF written: %d rows, %d finding(s)", len(table), len(findings))

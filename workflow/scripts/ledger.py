@@ -9,12 +9,18 @@ log = rule_log(snakemake.log[0], "ledger")
 
 machine = snakemake.wildcards.machine
 parts = []
-for path, run, variant in zip(snakemake.input.summaries, snakemake.params.runs, snakemake.params.variants):
+for path, verdict_path, run, variant in zip(snakemake.input.summaries, snakemake.input.verdicts, snakemake.params.runs,
+                                            snakemake.params.variants):
     summary = read_tsv(path)
     summary = summary[summary["band"] == "all"].drop(columns="band")
-    parts.append(summary.assign(machine=machine, run=run, variant=variant))
+    verdict = read_tsv(verdict_path).fillna("").iloc[0]
+    text = {"missing": f"missing: {verdict['effects']}", "retune": f"retune: {verdict['retune']}",
+            "unexplained": f"unexplained misfit: {verdict['unexplained']}", "nothing": "nothing missing"}[verdict["verdict"]]
+    if verdict["verdict"] == "missing" and verdict["unexplained"]:
+        text += f"; unexplained misfit remains: {verdict['unexplained']}"
+    parts.append(summary.assign(machine=machine, run=run, variant=variant, diagnosis=text))
 table = pd.concat(parts, ignore_index=True)[["machine", "run", "variant", "output", "input", "points", "chi2", "excess",
-                                             "rms_magnitude_db", "rms_phase_deg"]]
+                                             "rms_magnitude_db", "rms_phase_deg", "diagnosis"]]
 write_parquet(table, snakemake.output.ledger, kind="ledger",
               units={"chi2": "-", "excess": "-", "rms_magnitude_db": "dB", "rms_phase_deg": "deg", "points": "-"},
               metadata={"machine": machine})

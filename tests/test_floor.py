@@ -1,0 +1,125 @@
+"""The FRF's systematic floor: bands from the grid, two-level amplitude coefficients, scatter, fallback."""
+
+import numpy as np
+import pytest
+
+from ambid.errors import ConfigError
+from ambid.floor import FloorSettings, amplitude_coefficients, frequency_bands, local_coefficient, smooth_fit_ratio
+from ambid.frf import frf_from_log
+from ambid.logs import CHANNELS, identification_frame, validate_identification_log
+
+
+class TestBands:
+    def test_bands_hold_enough_points_and_cover_the_grid(self):
+        f = np.linspace(1.0, 750.0, 250)
+        edges = frequency_bands(f, min_points=20)
+        counts = np.histogram(f, bins=edges)[0]
+        assert counts.sum() == f.size and counts.min() >= 20
+        assert edges[0] == f[0] and edges[-1] > f[-1] and edges[-1] < f[-1] * 1.0001  # no band beyond the data
+        assert set(edges[1:-1]) <= {1, 2, 5, 10, 20, 50, 100, 200, 500}  # 1-2-5 steps per decade
+
+    def test_a_short_grid_is_one_band(self):
+        assert len(frequency_bands(np.linspace(1.0, 100.0, 15), min_points=20)) == 2
+
+
+def synthetic_log(kappa, noise, seed=0, points=60, repeat_ratio=0.5, lever_current=0.0):
+    """A log of one excited axis DX whose plant deviates by ``kappa A^2`` at amplitude A, every other step repeated.
+
+    The plant is a smooth ``G = 1e-5 / (1 + j f / 300)`` m/A on every radial output, the coil current ``1 + lever_current``.
+    """
+    rng = np.random.default_rng(seed)
+    f = np.linspace(5.0, 600.0, points)
+    amplitude = np.where(f < 200, 0.5, 2.0)
+    records = []
+
+    def record(k, a, level):
+        g = 1e-5 / (1 + 1j * f[k] / 300) * (1 + kappa * a**2)
+        coefficients = np.zeros(len(CHANNELS), dtype=complex)
+        coefficients[CHANNELS.index("U2_DX")] = a
+        for axis in ("DX", "DY", "NX", "NY"):
+            coefficients[CHANNELS.index(f"V2_{axis}")] = g * a * (1.0 if axis == "DX" else 0.3)
+        for axis in ("DY", "NX", "NY", "Z"):
+            coefficients[CHANNELS.index(f"U2_{axis}")] = 0.01 * a
+        coefficients[CHANNELS.index("V2_Z")] = 1e-9 * a
+        coefficients[CHANNELS.index("I_upper_DX")] = a * (1 + lever_current * a**2)
+        coefficients[CHANNELS.index("I_lower_DX")] = -a * (1 + lever_current * a**2)
+        sigma = np.array([noise * (1e-5 * a if name.startswith("V2") else 0.01 * a) for name in CHANNELS])
+        coefficients = coefficients + sigma * (rng.standard_normal(len(CHANNELS)) + 1j * rng.standard_normal(len(CHANNELS))) / np.sqrt(2)
+        coefficients[CHANNELS.index("U2_DX")] = a  # the excitation itself known exactly
+        return {"excited_axis": "DX", "step": int(k), "frequency_hz": float(f[k]), "amplitude_a": float(a),
+                "attempts": 1, "level": level, "coefficients": coefficients, "noise_std": sigma}
+
+    for k in range(points):
+        records.append(record(k, amplitude[k], 0))
+        if repeat_ratio is not None and k % 2 == 0:
+            records.append(record(k, repeat_ratio * amplitude[k], 1))
+    frame = identification_frame(records)
+    validate_identification_log(frame, "synthetic")
+    return frame
+
+
+class TestTwoLevel:
+    def test_amplitude_coefficient_recovered(self):
+        frame = synthetic_log(kappa=0.004, noise=1e-4)
+        estimates = amplitude_coefficients(frame)
+        f, kappa, variance = estimates[("positions", "DX", "DX")]
+        assert f.size == 30
+        assert np.median(np.abs(kappa)) == pytest.approx(0.004, rel=0.05)
+        assert np.median(local_coefficient(f, estimates[("positions", "DX", "DX")])) == pytest.approx(0.004, rel=0.05)
+        # the coil current is linear here: its coefficient is noise only
+        _, current, _ = estimates[("currents", "I_DX", "DX")]
+        assert np.median(np.abs(current)) < 1e-4
+
+    def test_systematic_std_is_kappa_a_squared_g(self):
+        frame = synthetic_log(kappa=0.004, noise=1e-4)
+        table, floors, _ = frf_from_log(frame)
+        dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
+        magnitude = np.hypot(dx["re"], dx["im"])
+        amplitude = np.where(dx["frequency_hz"] < 200, 0.5, 2.0)
+        assert np.median(dx["systematic_std"] / (0.004 * amplitude**2 * magnitude)) == pytest.approx(1.0, rel=0.1)
+        positions = floors[floors["family"] == "positions"]
+        assert set(positions["method"]) == {"two_level"}
+
+    def test_without_repeats_the_constant_applies_and_says_so(self):
+        frame = synthetic_log(kappa=0.004, noise=1e-4, repeat_ratio=None)
+        table, floors, _ = frf_from_log(frame, FloorSettings(fallback_floor=(("positions", 0.03), ("axial", 0.02),
+                                                                           ("currents", 0.002))))
+        dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
+        assert np.allclose(dx["systematic_std"], 0.03 * np.hypot(dx["re"], dx["im"]))
+        assert all(floors.loc[floors["family"] == "positions", "method"].str.contains("fallback"))
+
+
+class TestScatter:
+    def test_local_fit_residual_is_the_noise_on_a_smooth_frf(self):
+        rng = np.random.default_rng(4)
+        f = np.linspace(1.0, 500.0, 400)
+        g = 1.0 / (1 + 1j * f / 100)
+        std = np.full(f.size, 1e-3)
+        noisy = g + std * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)) / np.sqrt(2)
+        ratio = smooth_fit_ratio(f, noisy, std)
+        assert np.mean(ratio) == pytest.approx(1.0, abs=0.1)
+        # a propagated noise three times too large shows as a ratio of a ninth
+        assert np.mean(smooth_fit_ratio(f, noisy, 3 * std)) == pytest.approx(1 / 9, rel=0.15)
+
+    def test_overstated_noise_is_scaled_down_to_the_scatter(self):
+        frame = synthetic_log(kappa=0.0, noise=1e-4, points=120)
+        frame = frame.assign(noise_std=np.where(frame["channel"] == "U2_DX", 0.0, frame["noise_std"] * 3))
+        table, floors, _ = frf_from_log(frame)
+        current = floors[floors["family"] == "currents"]
+        assert (current["noise_scale"] < 0.6).all()
+
+
+def test_settings_are_checked():
+    with pytest.raises(ConfigError, match="fallback_floor"):
+        FloorSettings.from_config({"fallback_floor": {"positions": 0.02}})
+    with pytest.raises(ConfigError, match="unknown setting"):
+        FloorSettings.from_config({"floor": 1})
+    assert FloorSettings.from_config({}).fallback("currents") == 0.001
+
+
+def test_a_grid_shorter_than_the_scatter_window_is_handled():
+    """A coarse log (fewer steps than the running-mean window) gives a floor, not a shape error."""
+    frame = synthetic_log(kappa=0.004, noise=1e-4, points=16)
+    table, floors, _ = frf_from_log(frame)
+    assert np.isfinite(table["std"]).all() and np.isfinite(table["systematic_std"]).all()
+    assert len(floors) > 0

@@ -1,0 +1,187 @@
+"""The diagnosis as the user reads it: verdict with uncertainty, fingerprint, ranking, the lines to add.
+
+`diagnosis_report` turns an `ambid.diagnose.Diagnosis` into the candidates table
+(with where each candidate helps), the Markdown of ``diagnosis.md`` and the
+stage's findings (`ambid.findings`): effects missing with their joint values and
+standard deviations, variant parameters the data move, parameters at a bound or
+undetermined, misfit no effect explains.  `effects_config_lines` writes the
+``effects:`` entries with every digit, so adding them reproduces the diagnosed
+model exactly.
+"""
+
+import numpy as np
+import yaml
+
+from .compare import channel_errors, model_response, summarize
+from .diagnose import INDISTINGUISHABLE_BIC, effect_label, plant_with_effect
+from .effects import EFFECTS
+from .findings import Finding
+from .fingerprint import fingerprint, where_it_helps
+
+__all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value"]
+
+
+def effects_config_lines(effects):
+    """The ``effects:`` lines to add to a machine config (YAML), every parameter with all its digits.
+
+    Floats are written by YAML's shortest round-trip representation, so the
+    lines rebuild exactly the effect the diagnosis fitted; default ``axes`` are left out.
+    """
+    entries = []
+    for effect in effects:
+        entry = effect.to_config()
+        entry["parameters"] = {k: v for k, v in entry["parameters"].items()
+                               if k != "axes" or tuple(v) != tuple(EFFECTS[effect.name].parameters["axes"].default)}
+        entries.append(entry)
+    return yaml.safe_dump({"effects": entries}, sort_keys=False, default_flow_style=None, width=1000).rstrip("\n")
+
+
+def format_value(value, std):
+    """``value +- std`` with the digits the uncertainty supports (two significant digits of ``std``)."""
+    if not np.isfinite(std) or std <= 0:
+        return f"{value:.6g}"
+    digits = max(0, int(np.floor(np.log10(abs(value)))) - int(np.floor(np.log10(std))) + 2) if value != 0 else 2
+    return f"{value:.{min(max(digits, 2), 12)}g} +- {std:.2g}"
+
+
+def _cells_text(cells):
+    return ", ".join(f"{r.family} {r.band} (chi2 per point {r.chi2_per_point:.3g}, {r.points} points)"
+                     for r in cells.sort_values("chi2_per_point", ascending=False).itertuples())
+
+
+def diagnosis_findings(diagnosis, stage="diagnose"):
+    """What the user must know about a diagnosis, as `ambid.findings.Finding` rows."""
+    out = []
+    joint = diagnosis.joint.table if diagnosis.joint is not None else None
+    for fitted in diagnosis.sequence:
+        out.append(Finding(stage, "warning", "missing_effect", fitted.candidate.label,
+                           f"{fitted.candidate.label} is missing: it removes {100 * fitted.share:.0f} % of the misfit above "
+                           f"the floor (BIC evidence {fitted.evidence:.3g})", fitted.evidence))
+    if joint is not None and not joint.empty:
+        for row in joint.itertuples():
+            if row.at_bound:
+                out.append(Finding(stage, "warning", "at_bound", row.parameter,
+                                   f"the joint refit puts {row.parameter} at a bound of its range ({row.value:.6g})", row.value))
+            elif not row.determined:
+                out.append(Finding(stage, "note", "undetermined", row.parameter,
+                                   f"{row.parameter} is not determined by these data: {format_value(row.value, row.std)} "
+                                   f"({100 * row.relative_std:.0f} % relative)", row.relative_std))
+    if diagnosis.retune is not None:
+        for row in diagnosis.retune.itertuples():
+            out.append(Finding(stage, "warning", "retune", row.parameter,
+                               f"the data move {row.parameter} from {row.start:.6g} to {format_value(row.value, row.std)}",
+                               row.value))
+    for fitted in diagnosis.ranked:
+        if fitted.significant and fitted.at_bound and fitted.share >= 0.1:
+            out.append(Finding(stage, "note", "candidate_at_bound", fitted.candidate.label,
+                               f"{fitted.candidate.label} would explain part of the misfit only with "
+                               f"{', '.join(fitted.at_bound)} at the bound of its physical range: not an explanation",
+                               fitted.evidence))
+    unexplained = diagnosis.unexplained
+    if not unexplained.empty:
+        out.append(Finding(stage, "warning", "unexplained_misfit", ", ".join(sorted(set(unexplained["family"]))),
+                           "misfit above the floor that no effect of the library explains: " + _cells_text(unexplained),
+                           float(unexplained["chi2_per_point"].max())))
+    return out
+
+
+def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
+    """The candidates table (with where each helps) and the diagnosis in Markdown.
+
+    Parameters
+    ----------
+    diagnosis : ambid.diagnose.Diagnosis
+    plant : ambid.plant.Plant
+        The model the diagnosis started from.
+    measured : dict
+        `ambid.compare.measured_channels`.
+    bands_hz : sequence or None
+        Band edges of `ambid.compare.summarize` (None: from the measured grid).
+    title : str
+
+    Returns
+    -------
+    table : pandas.DataFrame
+    markdown : str
+    """
+    model = model_response(plant, measured)
+    errors = channel_errors(measured, model)
+    before = summarize(errors, bands_hz)
+    table = diagnosis.table()
+    helps = [where_it_helps(before, summarize(channel_errors(measured, model_response(plant_with_effect(plant, f.effect), measured)),
+                                              bands_hz)) for f in diagnosis.ranked]
+    table["helps_channels"] = [h["channels"] for h in helps]
+    table["helps_band"] = [h["band"] for h in helps]
+    lines = [f"# Diagnosis: {title}", ""]
+    joint = diagnosis.joint
+    limit = diagnosis.cells_before
+    if diagnosis.verdict == "nothing":
+        worst = float(limit["chi2_per_point"].max())
+        lines += [f"**Nothing is missing at the floor**: every channel family and band is within the floor (largest chi2 "
+                  f"per point {worst:.3g}); no candidate effect is needed.", ""]
+    if diagnosis.sequence:
+        new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
+        parts = []
+        for fitted, effect in zip(diagnosis.sequence, joint.effects if joint is not None else [f.effect for f in diagnosis.sequence]):
+            rows = new[new["parameter"].str.startswith(effect_label(fitted.effect) + ".")] if new is not None else None
+            values = ", ".join(f"{r.parameter.split('.', 1)[1]} = {format_value(r.value, r.std)}" for r in rows.itertuples()) \
+                if rows is not None and len(rows) else ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(fitted.candidate.free, fitted.values))
+            parts.append(f"`{fitted.candidate.label}` ({values})")
+        lines += [("**Missing: " if len(parts) == 1 else "**Missing, together: ") + "; ".join(parts) + "**.", ""]
+        first = diagnosis.sequence[0]
+        lines += [f"Chosen one after the other, then refitted jointly with the model's own parameters. The first removes "
+                  f"{100 * first.share:.1f} % of the misfit above the floor (BIC evidence {first.evidence:.4g}); it helps "
+                  f"most on {helps[diagnosis.ranked.index(first)]['channels']} and in the "
+                  f"{helps[diagnosis.ranked.index(first)]['band']} band.", ""]
+        if first.indistinguishable:
+            lines += [f"The data in the measured band cannot tell `{first.candidate.label}` from: "
+                      f"{', '.join(first.indistinguishable)} (BIC evidence within {INDISTINGUISHABLE_BIC:g}); either explains "
+                      "the measurement.", ""]
+    if diagnosis.retune is not None and not diagnosis.retune.empty:
+        lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations):", ""]
+        lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" for r in diagnosis.retune.itertuples()]
+        lines += ["", "Set them where the variant takes them (its machine file, variant or update)." , ""]
+    unexplained = diagnosis.unexplained
+    if not unexplained.empty:
+        lines += [f"**Unexplained misfit**{' remains' if diagnosis.sequence else ''}: no effect of the library brings "
+                  f"{_cells_text(unexplained)} to the floor. Read the fingerprint below for its shape.", ""]
+    lines += ["## Fingerprint of the residual", ""]
+    lines += [f"- {s}" for s in fingerprint(errors, before, diagnosis.cells_before)] + [""]
+    if joint is not None and not joint.table.empty:
+        lines += ["## Joint refit", "",
+                  "Every chosen effect and the model's own parameters refitted together (the model's own under a prior of "
+                  "its configured values, so what the data do not determine stays put).", "",
+                  "| parameter | origin | before | joint value +- std | determined |", "|---|---|---|---|---|"]
+        for r in joint.table.itertuples():
+            note = "yes" if r.determined else "no"
+            if r.at_bound:
+                note += ", at a bound"
+            lines.append(f"| {r.parameter} | {r.origin} | {r.start:.6g} | {format_value(r.value, r.std)} | {note} |")
+        lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
+                  ""]
+    lines += ["## Ranking against the model as it is", "",
+              "| rank | candidate | parameters | share above floor | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
+    for fitted, row in zip(diagnosis.ranked[:shown], table.head(shown).itertuples()):
+        if fitted.missing:
+            verdict = "missing"
+        elif fitted.at_bound:
+            verdict = f"at bound ({', '.join(fitted.at_bound)})"
+        elif not fitted.significant:
+            verdict = "not significant"
+        elif fitted.share < 0.1:
+            verdict = "removes too little"
+        else:
+            verdict = "model at the floor"
+        share = f"{100 * fitted.share:.1f} %" if fitted.share > -10 else "worse"
+        lines.append(f"| {row.rank} | {row.candidate} | {row.parameters} | {share} | {row.evidence_bic:.4g} | {verdict} |")
+    lines.append("")
+    if diagnosis.sequence and joint is not None:
+        lines += ["## Add it", "", "Append to a new variant's `effects:` in config/config.yaml "
+                  "(`machines.<machine>.variants.<new variant>: {base: <this variant>, effects: [...]}`), "
+                  "or to the machine file (joint values, all digits):", "", "```yaml", effects_config_lines(joint.effects),
+                  "```", ""]
+    lines += [f"Misfit chi2 per point {diagnosis.chi2 / diagnosis.points:.4g} over {diagnosis.points} complex points; "
+              f"overdispersion {diagnosis.overdispersion:.3g}; "
+              f"{sum(f.evaluations for f in diagnosis.ranked) + (joint.evaluations if joint else 0)} model evaluations.", ""]
+    return table, "\n".join(lines)
+

@@ -1,0 +1,406 @@
+"""The FRF's uncertainty beyond its noise: the systematic error of a stepped sine, measured from the data.
+
+An ETFE point carries two kinds of error.  Its *noise* (``std`` of the FRF
+table) comes from the log: the DFT lines beside the excitation line, or the
+scatter between neighbouring steps (`ambid.logs.noise_from_scatter`).  Its
+*systematic* error (``systematic_std``) is what a noise estimate cannot see:
+above all the force law's nonlinearity, which makes the describing function at
+the excitation frequency deviate from the linearized plant by a relative amount
+that grows with the square of the excitation amplitude ``A`` (thesis eq. 3.6 has
+cubic terms in the coil current and the air-gap change, both proportional to
+``A`` at one frequency; with an offset operating point its quadratic terms act at
+the same order through the second harmonic)::
+
+    G(A) = G_lin (1 + kappa(f) A^2 + ...)
+
+The comparison divides misfits by ``hypot(std, systematic_std)``.  This module
+estimates ``systematic_std`` per channel family (`FAMILIES`: radial positions,
+the axial position, the coil currents) and frequency band
+(`frequency_bands`, derived from the measured grid) by the first method the
+data support:
+
+``two_level``
+    Steps measured again at a lower amplitude (log ``level`` 1, `ambid.logs`):
+    ``d = G_0 / G_1 - 1 = kappa (A_0^2 - A_1^2)`` gives ``kappa`` of each channel
+    per pair (``A = |U2|``, the excitation amplitude); the noise-debiased rms of the
+    nearest pairs' ``kappa`` times ``A^2 |G|`` at each step is its systematic error.
+``fallback``
+    A documented constant relative floor (config ``frf.fallback_floor``) where
+    the data cannot tell: the smooth part of the amplitude-dependent error is
+    invisible without a second level.
+``smooth_fit``
+    The residual of a local quadratic fit of the FRF (the local polynomial
+    method) beyond what the noise explains, per channel and band (the median:
+    a resonance too sharp for the local fit is a few points of a band):
+    step-to-step systematic scatter; it replaces the constant at the points
+    where it is larger.
+
+The same residual, where it is *smaller* than the logged noise propagated to
+the FRF, replaces that noise: the closed loop correlates the noise of U2 with
+that of the outputs, which the first-order propagation of independent noise
+overstates (most on the coil currents, whose noise is mostly U2's).
+
+Every FRF row gets a ``systematic_std``; `floor_table` says which method applied
+where, and the report shows it.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .errors import ConfigError
+from .logs import CHANNELS
+from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
+
+__all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
+           "amplitude_coefficients", "local_coefficient", "smooth_fit_ratio", "systematic_floor"]
+
+#: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
+FAMILIES = ("positions", "axial", "currents")
+
+
+@dataclass(frozen=True)
+class FloorSettings:
+    """How the systematic floor is estimated (config ``frf``).
+
+    Attributes
+    ----------
+    fallback_floor : dict
+        Relative floor per family where the data cannot tell (positions 2 %:
+        the force law's nonlinearity at the thesis' 20-50 um response window;
+        coil currents 0.1 %: the amplifier is linear).
+    min_band_points : int
+        A band of the floor holds at least this many steps.
+    min_pairs : int
+        Repeated steps a band needs for the ``two_level`` method.
+    smooth_half_width : int
+        Local-polynomial window: this many steps either side.
+    scatter_half_width : int
+        Steps either side over which the scatter's ratio to the logged noise is averaged.
+    """
+
+    fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
+    min_band_points: int = 20
+    min_pairs: int = 5
+    smooth_half_width: int = 3
+    scatter_half_width: int = 10
+
+    def __post_init__(self):
+        floors = dict(self.fallback_floor)
+        if set(floors) != set(FAMILIES) or any(not (0 <= v < 1) for v in floors.values()):
+            raise ConfigError("frf.fallback_floor", f"needs a relative floor in [0, 1) for each of {list(FAMILIES)}")
+        for key, value, least in (("min_band_points", self.min_band_points, 5), ("min_pairs", self.min_pairs, 2),
+                                  ("smooth_half_width", self.smooth_half_width, 2),
+                                  ("scatter_half_width", self.scatter_half_width, 2)):
+            if int(value) != value or value < least:
+                raise ConfigError(f"frf.{key}", f"must be a whole number >= {least}")
+
+    @classmethod
+    def from_config(cls, mapping):
+        mapping = dict(mapping or {})
+        unknown = set(mapping) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"frf.{sorted(unknown)[0]}", "unknown setting")
+        if "fallback_floor" in mapping:
+            mapping["fallback_floor"] = tuple(sorted(dict(mapping["fallback_floor"]).items()))
+        return cls(**mapping)
+
+    def fallback(self, family):
+        return dict(self.fallback_floor)[family]
+
+
+def family_of(estimator, output, input_axis):
+    """Channel family of an FRF row: ``currents`` (coil currents), ``axial`` (Z/Z), ``positions`` (radial/radial),
+    ``other`` (SISO rows between the radial axes and Z, which the comparison does not use)."""
+    if estimator == "current":
+        return "currents"
+    if output == AXIAL_AXIS or input_axis == AXIAL_AXIS:
+        return "axial" if output == input_axis else "other"
+    return "positions"
+
+
+def frequency_bands(frequency_hz, min_points=20):
+    """Band edges for a measured grid: 1-2-5 steps per decade, merged until each band holds ``min_points`` steps.
+
+    Returns
+    -------
+    array
+        Increasing edges; the first is the lowest frequency, the last lies just
+        above the highest, so every grid point falls in a band ``[lo, hi)``.
+    """
+    f = np.unique(np.asarray(frequency_hz, dtype=float))
+    if f.size == 0:
+        return np.array([0.0, np.inf])
+    decades = np.arange(np.floor(np.log10(f[0])), np.ceil(np.log10(f[-1])) + 1)
+    nice = np.sort(np.concatenate([10**decades, 2 * 10**decades, 5 * 10**decades]))
+    edges = [f[0]] + [e for e in nice if f[0] < e <= f[-1]] + [np.nextafter(f[-1], np.inf)]
+    counts = lambda e: np.histogram(f, bins=e)[0]  # noqa: E731
+    while len(edges) > 2:
+        small = np.flatnonzero(counts(edges) < min_points)
+        if small.size == 0:
+            break
+        k = int(small[0])
+        # merge band k with its smaller neighbour (the last band merges down)
+        c = counts(edges)
+        if k == len(c) - 1 or (k > 0 and c[k - 1] < c[k + 1]):
+            del edges[k]
+        else:
+            del edges[k + 1]
+    return np.array(edges, dtype=float)
+
+
+def band_labels(edges):
+    """``"10-100 Hz"`` labels of the bands between ``edges``."""
+    return [f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+def level_pairs(frame):
+    """Steps measured at two levels: per excited axis, the level-0 and level-1 coefficients of the same steps.
+
+    Returns
+    -------
+    dict
+        ``axis -> (frequency_hz (n,), c0 (n, 20), s0 (n, 20), c1 (n, 20), s1 (n, 20))``,
+        coefficients and noise in `ambid.logs.CHANNELS` order; axes without repeats are absent.
+    """
+    if frame is None or "level" not in frame.columns or not (frame["level"] > 0).any():
+        return {}
+    index = {name: k for k, name in enumerate(CHANNELS)}
+    out = {}
+    for axis, group in frame[frame["level"] <= 1].groupby("excited_axis", sort=False):
+        repeated = np.intersect1d(group.loc[group["level"] == 1, "step"].unique(), group.loc[group["level"] == 0, "step"].unique())
+        if repeated.size == 0:
+            continue
+        arrays = []
+        for level in (0, 1):
+            part = group[(group["level"] == level) & group["step"].isin(repeated)]
+            row = np.searchsorted(repeated, part["step"].to_numpy())
+            column = part["channel"].map(index).to_numpy()
+            coefficients = np.full((repeated.size, len(CHANNELS)), np.nan + 0j)
+            noise = np.full((repeated.size, len(CHANNELS)), np.nan)
+            coefficients[row, column] = part["re"].to_numpy() + 1j * part["im"].to_numpy()
+            noise[row, column] = part["noise_std"].to_numpy()
+            arrays += [coefficients, noise]
+        frequency = group[group["level"] == 0].groupby("step")["frequency_hz"].first().loc[repeated].to_numpy()
+        out[axis] = (frequency, *arrays)
+    return out
+
+
+def _pair_channels(axis, c0, s0, c1, s1):
+    """The channels of one excited axis' pairs: ``(family, output, y0, sy0, y1, sy1)``."""
+    out = []
+    outputs = [AXIAL_AXIS] if axis == AXIAL_AXIS else list(RADIAL_AXES)
+    for output in outputs:
+        k = CHANNELS.index(f"V2_{output}")
+        out.append(("axial" if output == AXIAL_AXIS else "positions", output, c0[:, k], s0[:, k], c1[:, k], s1[:, k]))
+    up, low = CHANNELS.index(f"I_upper_{axis}"), CHANNELS.index(f"I_lower_{axis}")
+    out.append(("currents", axis, 0.5 * (c0[:, up] - c0[:, low]), 0.5 * np.hypot(s0[:, up], s0[:, low]),
+                0.5 * (c1[:, up] - c1[:, low]), 0.5 * np.hypot(s1[:, up], s1[:, low])))
+    return out
+
+
+def amplitude_coefficients(frame):
+    """The amplitude coefficient ``kappa`` [1/A^2] of every channel at every repeated step.
+
+    ``G(A) = G_lin (1 + kappa(f) A^2 + ...)`` with ``A`` the excitation amplitude
+    ``|U2|`` (the force law's cubic terms grow with the square of the current and
+    of the air-gap change, both proportional to ``A`` at one frequency), so a
+    pair gives ``kappa = (G_0 / G_1 - 1) / (A_0^2 - A_1^2)`` and its noise
+    variance from the logged noise of both levels.
+
+    Returns
+    -------
+    dict
+        ``(family, output, input) -> (frequency_hz, kappa (complex), variance)``, ``output`` ``I_<axis>``
+        for the coil currents; only finite estimates.
+    """
+    out = {}
+    for axis, (frequency, c0, s0, c1, s1) in level_pairs(frame).items():
+        u = CHANNELS.index(f"U2_{axis}")
+        lever = np.abs(c0[:, u]) ** 2 - np.abs(c1[:, u]) ** 2
+        for family, output, y0, sy0, y1, sy1 in _pair_channels(axis, c0, s0, c1, s1):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                g0, g1 = y0 / c0[:, u], y1 / c1[:, u]
+                rel0 = np.hypot(sy0 / np.abs(y0), s0[:, u] / np.abs(c0[:, u]))
+                rel1 = np.hypot(sy1 / np.abs(y1), s1[:, u] / np.abs(c1[:, u]))
+                kappa = (g0 / g1 - 1) / lever
+                variance = np.abs(g0 / g1) ** 2 * (rel0**2 + rel1**2) / lever**2
+            ok = np.isfinite(kappa) & np.isfinite(variance) & (variance > 0) & (lever > 0)
+            name = f"I_{output}" if family == "currents" else output
+            out[(family, name, axis)] = (frequency[ok], kappa[ok], variance[ok])
+    return out
+
+
+def local_coefficient(frequency_hz, estimates, neighbours=3):
+    """``|kappa|`` at each frequency: the debiased rms of the ``2 neighbours + 1`` nearest pairs' estimates.
+
+    ``sum w (|kappa_k|^2 - var_k) / sum w`` with ``w = 1 / var_k``, clipped at 0:
+    the amplitude-dependent error is a smooth function of frequency, its
+    estimate per pair is noisy.
+    """
+    f, kappa, variance = estimates
+    out = np.zeros(len(frequency_hz))
+    if f.size == 0:
+        return out
+    count = min(2 * neighbours + 1, f.size)
+    for k, frequency in enumerate(np.asarray(frequency_hz, dtype=float)):
+        nearest = np.argsort(np.abs(np.log(f / frequency)))[:count]
+        w = 1.0 / variance[nearest]
+        out[k] = np.sqrt(max(np.sum(w * (np.abs(kappa[nearest]) ** 2 - variance[nearest])) / np.sum(w), 0.0))
+    return out
+
+
+def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
+    """Residual of a local polynomial fit against its noise: ``|e_k|^2 / (std_k^2 (1 - h_kk))`` per point.
+
+    A complex polynomial of degree ``order`` is fitted to the ``2 half_width + 1``
+    points around each point (shifted at the ends); ``h_kk`` is the hat-matrix
+    diagonal, so the ratio is exponentially distributed with mean 1 where the
+    FRF is smooth and the noise is all there is.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    n = f.size
+    width = 2 * half_width + 1
+    ratio = np.full(n, np.nan)
+    if n < width:
+        return ratio
+    for k in range(n):
+        start = min(max(k - half_width, 0), n - width)
+        window = slice(start, start + width)
+        x = (f[window] - f[k]) / max(f[window][-1] - f[window][0], 1e-12)
+        basis = np.vander(x, order + 1)
+        pinv = np.linalg.pinv(basis)
+        hat = basis @ pinv
+        j = k - start
+        residual = values[window][j] - (hat[j] @ values[window])
+        leverage = 1.0 - hat[j, j]
+        ratio[k] = np.abs(residual) ** 2 / (std[k] ** 2 * leverage) if std[k] > 0 else np.nan
+    return ratio
+
+
+def _running_mean(values, half_width):
+    """Mean of the finite values within ``half_width`` points either side of each point (NaN where there are none)."""
+    finite = np.isfinite(values)
+    total = np.concatenate([[0.0], np.cumsum(np.where(finite, values, 0.0))])
+    count = np.concatenate([[0], np.cumsum(finite)])
+    index = np.arange(len(values))
+    low = np.clip(index - half_width, 0, len(values))
+    high = np.clip(index + half_width + 1, 0, len(values))
+    window_count = count[high] - count[low]
+    return np.where(window_count > 0, (total[high] - total[low]) / np.maximum(window_count, 1), np.nan)
+
+
+def _excitation_amplitude(table, arrays):
+    """``|U2|^2`` behind every FRF row: its run's excitation; MIMO rows mix the four radial runs (their mean square)."""
+    square = np.full(len(table), np.nan)
+    frequency = table["frequency_hz"].to_numpy()
+    for axis, (grid, coefficients, _) in arrays.items():
+        amplitude = np.abs(coefficients[:, CHANNELS.index(f"U2_{axis}")]) ** 2
+        rows = (table["input"] == axis).to_numpy() & (table["estimator"] != "mimo").to_numpy()
+        square[rows] = amplitude[np.clip(np.searchsorted(grid, frequency[rows]), 0, grid.size - 1)]
+    mimo = (table["estimator"] == "mimo").to_numpy()
+    if mimo.any() and all(a in arrays for a in RADIAL_AXES):
+        grid = arrays[RADIAL_AXES[0]][0]
+        mean = np.mean([np.abs(arrays[a][1][:, CHANNELS.index(f"U2_{a}")]) ** 2 for a in RADIAL_AXES], axis=0)
+        square[mimo] = mean[np.clip(np.searchsorted(grid, frequency[mimo]), 0, grid.size - 1)]
+    return square
+
+
+def systematic_floor(table, arrays, frame, settings=FloorSettings()):
+    """Fill the FRF table's ``systematic_std`` from the log; say how, per family and band.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        `ambid.frf.frf_table` of the run's level-0 steps.
+    arrays : dict
+        `ambid.frf.log_arrays` of the same steps (excitation amplitudes).
+    frame : pandas.DataFrame or None
+        The identification log (its repeated steps, if any); None for FRFs without a log (UFF58).
+    settings : FloorSettings
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        A copy with ``systematic_std`` set on every row.
+    floors : pandas.DataFrame
+        One row per family and band: ``family, band, band_lo_hz, band_hi_hz, points, method, pairs,
+        smooth_fit_points, noise_scale, relative_median, relative_p90`` (of ``systematic_std / |G|``).
+
+    Notes
+    -----
+    ``two_level`` rows get ``|kappa(f)| |U2|^2 |G|`` with ``kappa`` of their channel
+    (`local_coefficient` of `amplitude_coefficients`; a MIMO element takes its SISO
+    twin's); a channel with fewer than ``min_pairs`` pairs falls back per band to
+    ``smooth_fit`` or the constant.
+    """
+    table = table.copy()
+    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
+    magnitude = np.abs(values)
+    families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
+    excitation = _excitation_amplitude(table, arrays)
+    coefficients = amplitude_coefficients(frame)
+    systematic = np.full(len(table), np.nan)
+    pairs = np.zeros(len(table), dtype=int)
+    smooth = np.full(len(table), np.nan)
+    for (estimator, output, input_axis), channel in table.groupby(["estimator", "output", "input"], sort=False):
+        order = channel.sort_values("frequency_hz").index.to_numpy()
+        frequency = table.loc[order, "frequency_hz"].to_numpy()
+        smooth[order] = smooth_fit_ratio(frequency, values[order], table.loc[order, "std"].to_numpy(), settings.smooth_half_width)
+        family = family_of(estimator, output, input_axis)
+        estimates = coefficients.get((family, f"I_{output}" if family == "currents" else output, input_axis))
+        if estimates is not None and estimates[0].size >= settings.min_pairs:
+            kappa = local_coefficient(frequency, estimates)
+            systematic[order] = kappa * excitation[order] * magnitude[order]
+            pairs[order] = estimates[0].size
+
+    # noise that the scatter between neighbouring steps shows to be smaller than the propagated logged noise (the
+    # closed loop correlates the noise of U2 with that of V2 and of the coil currents): scaled down to the scatter,
+    # point by point from the mean over the neighbouring steps (a mean, as chi2 is: rare large errors count)
+    frequency = table["frequency_hz"].to_numpy()
+    edges = {family: frequency_bands(frequency[families == family], settings.min_band_points) for family in set(families)}
+    band_index = np.zeros(len(table), dtype=int)
+    for family, family_edges in edges.items():
+        rows = families == family
+        band_index[rows] = np.clip(np.searchsorted(family_edges, frequency[rows], side="right") - 1, 0, len(family_edges) - 2)
+    noise_scale = np.ones(len(table))
+    excess = np.zeros(len(table))  # the step-to-step scatter's variance beyond the noise, in units of the noise's
+    for _, channel in table.groupby(["estimator", "output", "input"], sort=False):
+        order = channel.sort_values("frequency_hz").index.to_numpy()
+        local = _running_mean(smooth[order], settings.scatter_half_width)
+        noise_scale[order] = np.sqrt(np.clip(np.where(np.isfinite(local), local, 1.0), 1e-4, 1.0))
+        for b in np.unique(band_index[order]):
+            points = order[band_index[order] == b]
+            ratios = smooth[points][np.isfinite(smooth[points])]
+            if ratios.size >= 10:  # the median: a resonance the local fit cannot follow is a few points of the band
+                ratio = np.median(ratios) / np.log(2)
+                if ratio > 1 + 3 * 1.44 / np.sqrt(ratios.size):
+                    excess[points] = ratio - 1.0
+    noise = table["std"].to_numpy()
+    table["std"] = noise * noise_scale
+    # the smooth-fit method: step-to-step systematic scatter, sqrt(scatter - noise), per channel and band
+    smooth_systematic = noise * np.sqrt(excess)
+    rows = []
+    for family in [f for f in FAMILIES + ("other",) if f in edges]:
+        labels = band_labels(edges[family])
+        fallback = settings.fallback("axial" if family == "other" else family)
+        for b, label in enumerate(labels):
+            inside = (families == family) & (band_index == b)
+            if not inside.any():
+                continue
+            unknown = inside & ~np.isfinite(systematic)
+            from_scatter = unknown & (smooth_systematic > fallback * magnitude)
+            systematic[unknown] = np.maximum(smooth_systematic[unknown], fallback * magnitude[unknown])
+            if family == "other":
+                continue
+            methods = (["two_level"] if (inside & (pairs > 0)).any() else []) + (["fallback"] if unknown.any() else []) + (
+                ["smooth_fit"] if from_scatter.any() else [])
+            relative = systematic[inside] / np.maximum(magnitude[inside], 1e-300)
+            rows.append({"family": family, "band": label, "band_lo_hz": edges[family][b], "band_hi_hz": edges[family][b + 1],
+                         "points": int(inside.sum()), "method": " + ".join(methods), "pairs": int(pairs[inside].max()),
+                         "smooth_fit_points": int(from_scatter.sum()), "noise_scale": float(np.median(noise_scale[inside])),
+                         "relative_median": float(np.median(relative)),
+                         "relative_p90": float(np.quantile(relative, 0.9))})
+    table["systematic_std"] = systematic
+    return table, pd.DataFrame(rows)
