@@ -37,7 +37,7 @@ __all__ = ["SIGNAL_EFFECTS", "SampledSystem", "sampled_system", "controller_matr
 
 #: Input- and output-side effects the sampled loop represents (every one in the effect library).
 SIGNAL_EFFECTS = ("amplifier_lowpass", "eddy_current", "cross_coupling", "sensor_lowpass", "delay")
-RIG_CHAINS = ("coil", "force", "sensor", "output_matrix")  # where the rig-only effects (ambid.rig_effects) sit
+RIG_CHAINS = ("coil", "force", "sensor", "output_matrix")  # where the rig-only effects sit (their ``rig_chain``)
 
 
 def zoh_discretize(a, b, time_s):
@@ -51,7 +51,7 @@ def zoh_discretize(a, b, time_s):
 
 def _diagonal_chains(effects, kinds, axes, chain):
     """Block-diagonal MIMO system of the per-axis SISO chains of the ``kinds`` effects acting on each axis, with the
-    rig-only effects (`ambid.rig_effects`) of rig chain ``chain``."""
+    rig-only effects whose ``rig_chain`` is ``chain``."""
     n_axes = len(axes)
     chained = [e for e in effects if e.name in kinds or getattr(e, "rig_chain", None) == chain]
     blocks = [series_state_space([e.siso_state_space() for e in chained if e.acts_on(axis)]) for axis in axes]
@@ -64,7 +64,7 @@ def _diagonal_chains(effects, kinds, axes, chain):
 
 def coupling_matrix(effects, side, axes):
     """The static cross-coupling matrix of the ``side`` (input: forces, output: sensors) on ``axes``; on the output
-    side with the rig-only sensor gains (`ambid.rig_effects`)."""
+    side with the rig-only sensor gains (``rig_chain`` output_matrix)."""
     matrix = np.eye(len(axes))
     for effect in effects:
         if (effect.name == "cross_coupling" and effect.side == side) or (
