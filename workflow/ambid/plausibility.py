@@ -61,7 +61,9 @@ def check_axes(frame, estimator, source):
 
 
 def _nearest_unit(log_ratio, kind):
-    """A unit that explains a factor 10^log_ratio between the log and the model."""
+    """A unit that explains a factor 10^log_ratio between the log and the model ("" for none, or a dead channel)."""
+    if not np.isfinite(log_ratio):
+        return ""
     steps = int(np.round(log_ratio / 3))
     if kind == "frequency":
         return {-1: "frequencies look like kHz", 1: "frequencies look like mHz"}.get(steps, "")
@@ -73,7 +75,8 @@ def _nearest_unit(log_ratio, kind):
 
 
 def _refuse(source, what, ratio, kind, detail, model_source):
-    unit = _nearest_unit(np.log10(ratio), kind)
+    with np.errstate(divide="ignore"):
+        unit = _nearest_unit(np.log10(ratio), kind)
     hint = f"{unit} (the log must hold SI units: m, A, Hz)" if unit else "check the units of the log (SI: m, A, Hz)"
     raise LogError(source, f"{what} is {ratio:.3g} times the nominal model's {detail}: {hint}, or the model "
                            f"({model_source}) is off by as much")

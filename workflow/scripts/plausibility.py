@@ -2,7 +2,7 @@
 
 from ambid.frf import log_arrays
 from ambid.io import rule_log, write_tsv
-from ambid.logs import read_identification_log
+from ambid.logs import log_source, noise_from_scatter, read_identification_log
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plausibility import check_units
@@ -15,6 +15,8 @@ if hasattr(snakemake.input, "uff"):  # run format uff: FRFs without a raw log; t
     log.info("%s", rows[0]["note"])
 else:
     frame, info = read_identification_log(snakemake.input.log)
+    if (frame["noise_std"] == 0).all():  # no noise estimate (thesis .m): a channel that never scatters is dead, first
+        noise_from_scatter(frame, log_source(snakemake.input.log, info))
     nominal = Plant(machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine,
                                         source=snakemake.input.machine))
     rows = check_units(log_arrays(frame), nominal, info["metadata"].get("original") or snakemake.input.log,
