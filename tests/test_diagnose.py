@@ -265,19 +265,21 @@ def suite(identification):
 @pytest.mark.parametrize("machine", ["hs_eden_like", "demo20"])
 @pytest.mark.parametrize("name", ["amplifier_lowpass", "delay", "element_stiffness", "foundation_mode"])
 def test_a_hidden_effect_is_named_with_its_parameters(machine, name, suite):
+    """The hidden effect is chosen, or named indistinguishable from the choice (a 10 us delay and a 15 kHz sensor pole
+    cannot be told apart below 1 kHz); its own fit recovers the drawn parameters (within 5 %, or 2 sigma where the
+    data do not determine them), and nothing is left above the floor."""
     draws, diagnosis = suite(machine, [name])
     assert named_first(diagnosis, draws, [name]), diagnosis.table()
-    joint = diagnosis.joint.table
-    rows = joint[(joint["origin"] == "new")]
-    for row in rows.itertuples():
-        key = row.parameter.split(".", 1)[1]
-        truth = draws[name][key.split("[")[0]]
-        if "[" in key:
-            truth = truth[int(key.split("[")[1].rstrip("]"))]
-        if row.determined:
-            assert row.value == pytest.approx(truth, rel=0.05), (row, truth)
+    label = effect_label(effect_from_config(hidden_entry(draws, name), name))
+    own = next(f for f in diagnosis.ranked if f.candidate.label == label)
+    for parameter, value, std in zip(own.candidate.free, own.values, own.std):
+        truth = draws[name][parameter.name]
+        if parameter.index is not None:
+            truth = truth[parameter.index]
+        if std < 0.1 * abs(truth):
+            assert value == pytest.approx(truth, rel=0.05), (parameter, value, std, truth)
         else:
-            assert abs(row.value - truth) <= 2 * row.std, (row, truth)
+            assert abs(value - truth) <= 2 * std, (parameter, value, std, truth)
     assert not diagnosis.cells_after["above_floor"].any(), diagnosis.cells_after
 
 

@@ -30,7 +30,9 @@ model as it is exceeds `INDISTINGUISHABLE_BIC` (Kass & Raftery's "very strong"),
 (2) it removes at least ``min_share`` (10 %) of the excess in the cells above the
 floor, and (3) none of its parameters ends at a search bound (an effect that
 wants more than its physical range allows explains something else).  Candidates
-whose evidence differs by less than `INDISTINGUISHABLE_BIC` are named as
+whose evidence differs by less than `INDISTINGUISHABLE_BIC`, or which both
+bring every cell to the floor (the data, at their floor, cannot tell them
+apart: a 10 us delay and a 15 kHz sensor pole below 1 kHz), are named as
 indistinguishable.
 
 **Selection and joint refit.**  Missing effects are chosen one after the other
@@ -471,10 +473,12 @@ def _rank(fitted, chi2, residual, evaluator, settings):
         f.share = (1.0 - cells.excess(f.residual, above) / excess) if excess > 0 else 0.0
         f.missing = bool(f.significant and above.any() and f.share >= settings.min_share and not f.at_bound)
     fitted.sort(key=lambda f: (not f.missing, -f.evidence))
+    at_floor = {id(f): not cells.above(cells.chi2(f.residual), settings.floor_limit).any() for f in fitted}
     for f in fitted:
         if f.missing:
             f.indistinguishable = tuple(g.candidate.label for g in fitted if g is not f and g.missing
-                                        and abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC)
+                                        and (abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC
+                                             or (at_floor[id(f)] and at_floor[id(g)])))
     return overdispersion
 
 
