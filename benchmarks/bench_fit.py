@@ -22,6 +22,14 @@ these data (the Cramer-Rao bound, in %).
 Targets (3 % noise): frequencies within 0.02 %, damping within 1.5 % (p90);
 10 % noise: damping within 5 %; <= 50 ms per channel.
 
+Second part (issue 16), on the default runs' measured FRFs (``results/<machine>/frf/<run>/frf.parquet``
+of ``make run``): every channel the fit rule fits, by the default estimator (with the rule's settings and
+hints) and by the thesis' 4/6 fit, scored by chi2 per degree of freedom against the FRF's own standard
+deviations, ``2 sum |G_fit - G|^2 / sigma^2 / (2 n - p)`` (p: real parameters of each model), with the
+fitted delay and the default fit's verdict (`ambid.channel_fit.fit_verdict`), and by the unweighted rms
+relative misfit ``|G_fit / G - 1|`` [%] for information.  Target: the default is not worse than the
+thesis' 4/6 on any channel by chi2/dof.
+
 Usage: ``.venv/bin/python benchmarks/bench_fit.py [seeds]``.
 """
 
@@ -142,12 +150,76 @@ def run(machine, seeds):
                       f"{np.mean(merged):6.2f} {ms:6.1f} {bound_text}")
 
 
+def parameters(model):
+    """Real parameters of a fitted `ChannelModel` (gain, rigid pairs, modes, zero factors, residual, low-pass, delay)."""
+    return (1 + model.rigid_rad_s.size + 2 * model.mode_rad_s.size + 2 * len(model.zero_factors) + 1
+            + int(np.isfinite(model.lowpass_rad_s)) + 1)
+
+
+def default_runs():
+    """Chi2 per channel of the default estimator and the thesis' 4/6 fit on the default runs' measured FRFs."""
+    from ambid.channel_fit import fit_channel, fit_verdict, real_zero_hz, select_channels
+    from ambid.frf import channel
+    from ambid.io import read_parquet
+
+    config = yaml.safe_load(open(ROOT / "config" / "config.yaml"))
+    settings = config["fit"]
+    print("\n== default runs: chi2/dof against the FRF's standard deviations, default estimator vs thesis 4/6")
+    print(f"{'machine':13s} {'run':9s} {'channel':7s} {'default':>10s} {'thesis 4/6':>11s} {'ratio':>7s} {'rel% def':>8s}"
+          f" {'rel% 4/6':>8s} {'delay us':>9s} {'verdict':>14s} {'s':>5s}")
+    worse, worse_relative = [], []
+    for machine, entry in config["machines"].items():
+        plant = Plant(machine_from_config(yaml.safe_load(open(ROOT / entry["model"]))))
+        hint = rigid_pole_hz(plant)
+        for run, spec in (entry.get("runs") or {}).items():
+            if spec["kind"] != "identification":
+                continue
+            path = ROOT / "results" / machine / "frf" / run / "frf.parquet"
+            if not path.exists():
+                print(f"{machine:13s} {run:9s} no FRF: run `make run` first")
+                continue
+            table, _ = read_parquet(path, kind="frf")
+            estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+            for output, input_axis in select_channels(settings.get("channels", "same_plane")):
+                f, g, s = channel(table, estimator, output, input_axis)
+                if f.size == 0:
+                    continue
+                known = known_response(plant, output, input_axis, f)
+                t0 = time.perf_counter()
+                fit = fit_channel(f, g, std=s, known=known, modes=settings.get("modes"), orders=settings.get("orders"),
+                                  lowpass=settings.get("lowpass", False), delay=settings.get("delay", True),
+                                  rigid_hint_hz=hint, zero_hint_hz=real_zero_hz(plant, output, input_axis, f.max()))
+                elapsed = time.perf_counter() - t0
+                reference = levy_thesis(f, g, *settings.get("thesis_orders", (4, 6)))
+
+                def chi2(model, p):
+                    return 2 * np.sum(np.abs((model - g) / s) ** 2) / (2 * f.size - p)
+
+                ours = chi2(fit.model.frequency_response(f, known), parameters(fit.model))
+                thesis = chi2(reference.frequency_response(f), reference.numerator.size + reference.denominator.size - 1)
+                # unweighted: the rms relative misfit, which does not favour the estimator that uses sigma
+                relative = [100 * np.sqrt(np.mean(np.abs(model / g - 1) ** 2))
+                            for model in (fit.model.frequency_response(f, known), reference.frequency_response(f))]
+                flag, _ = fit_verdict(fit, f, g, known, f"{output}/{input_axis}", settings.get("max_chi2", 300.0))
+                name = f"{machine} {run} {output}/{input_axis}"
+                if ours > thesis:
+                    worse.append(name)
+                if relative[0] > relative[1]:
+                    worse_relative.append(name)
+                print(f"{machine:13s} {run:9s} {output + '/' + input_axis:7s} {ours:10.4g} {thesis:11.4g} {ours / thesis:7.3f} "
+                      f"{relative[0]:8.2f} {relative[1]:8.2f} {1e6 * fit.model.delay_s:9.1f} {flag or 'ok':>14s} {elapsed:5.2f}")
+    print(f"target: default worse than thesis 4/6 by chi2/dof on {len(worse)} channel(s){': ' + ', '.join(worse) if worse else ''}")
+    print(f"(by the unweighted rms relative misfit on {len(worse_relative)}: the thesis' weighting 1/(A G) minimizes relative "
+          "error, the default the error in units of the noise, which is largest relative to |G| at the anti-resonances)")
+
+
 def main():
     seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 50
     print(f"bench_fit: {seeds} seeds per case; 'spur' = extra lightly damped in-band resonances per fit, 'unst' = unstable"
           " complex poles per fit, 'merged' = share of fits with fewer than two unstable rigid poles")
     for machine in ("hs_eden_like", "demo20"):
         run(machine, seeds)
+    default_runs()
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ rule calibrate:
     params:
         machine_config=machine_config,
         settings=config["calibration"],
+        source=log_source,
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
     message:

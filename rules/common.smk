@@ -8,12 +8,15 @@ from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
 from ambid.calibration import calibration_settings_from_config
+from ambid.channel_fit import max_fit_modes
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
+from ambid.io import file_digest, read_yaml
 from ambid.multisine import multisine_settings_from_config
 from ambid.machine import machine_from_config
 from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
+from ambid.update import UpdateSettings
 from ambid.variants import NOMINAL, variant_chain
 
 
@@ -29,18 +32,15 @@ def check_schema(instance, schema, source):
         raise ConfigError(key or "(top level)", error.message, source=source) from None
 
 
-check_schema(config, "config.schema.yaml", "config")
+CONFIG_SOURCE = ", ".join(str(path) for path in workflow.configfiles) or "config"
+for _path in workflow.configfiles:  # Snakemake's loader keeps the last of duplicate keys: refuse them
+    read_yaml(_path)
+check_schema(config, "config.schema.yaml", CONFIG_SOURCE)
 
 
 def read_machine_file(path, key, name):
     """Read and validate a machine file; raise naming the file and the config key that points to it."""
-    try:
-        with open(path) as handle:
-            machine_config = yaml.safe_load(handle)
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(key, f"cannot read {path}: {error}") from None
-    if not isinstance(machine_config, dict):
-        raise ConfigError(key, f"{path} does not hold a mapping")
+    machine_config = read_yaml(path, key)  # duplicate keys refused
     check_schema(machine_config, "machine.schema.yaml", path)
     machine_from_config(machine_config, name=name, source=path)  # cross-reference checks
     return machine_config
@@ -57,11 +57,7 @@ def load_rig_config(name):
     path = config["machines"][name].get("rig")
     if path is None:
         raise ConfigError(f"machines.{name}.rig", "runs with source 'rig' need a rig file")
-    try:
-        with open(path) as handle:
-            rig_config = yaml.safe_load(handle)
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"machines.{name}.rig", f"{path}: {error}") from None
+    rig_config = read_yaml(path, f"machines.{name}.rig")  # duplicate keys refused
     check_schema(rig_config, "rig.schema.yaml", path)
     if rig_config["machine"] != name:
         raise ConfigError(f"machines.{name}.rig", f"{path} is the rig of machine {rig_config['machine']!r}")
@@ -122,6 +118,31 @@ def check_variants(machine):
 
 for _machine in config["machines"]:
     check_variants(_machine)
+
+
+def check_stage_settings():
+    """Checks of the stage settings that need no data, so that a bad value stops the workflow before any job."""
+    fit_modes = max_fit_modes(config["fit"])
+    update_settings = {}
+    for name, entry in config["machines"].items():
+        if entry.get("update"):
+            settings = UpdateSettings.from_config(config["update"], entry["update"])
+            settings.check_against(machine_from_config(MACHINE_CONFIGS[name], name=name), f"machines.{name}.update")
+            if settings.modes > fit_modes:
+                raise ConfigError(
+                    "update.modes",
+                    f"{settings.modes} flexible modes, but the fit gives a channel "
+                    f"{fit_modes} at most (fit.modes / fit.orders)",
+                )
+    bands = config["compare"]["bands_hz"] or []  # null: bands from the measured grid
+    if any(b <= a for a, b in zip(bands, bands[1:])):
+        raise ConfigError("compare.bands_hz", f"lower band edges must increase strictly, got {bands}")
+
+
+try:
+    check_stage_settings()
+except ConfigError as error:
+    raise error.within(source=error.source or CONFIG_SOURCE) from None
 MODEL_VARIANTS = sorted({v for m in config["machines"] for v in variants_of(m)})
 IDENTIFICATION_SETTINGS = settings_from_config(config["identification"])
 MULTISINE_SETTINGS = multisine_settings_from_config(config["multisine"])
@@ -249,6 +270,21 @@ def frf_input(wildcards):
     return {"log": f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"}
 
 
+def log_source(wildcards):
+    """A user's log of a run and its content digest (a param, so that a changed log reruns what depends on it
+    whatever its modification time: cp -p, rsync -a, tar); empty for logs the workflow acquires."""
+    spec = RUNS[(wildcards.machine, wildcards.run)]
+    if spec["source"] != "data":
+        return {}
+    if spec["kind"] != "identification":
+        path = f"data/{wildcards.machine}/{wildcards.run}/calibration.parquet"
+    elif spec.get("format", "parquet") == "parquet":
+        path = f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"
+    else:
+        path = user_log_file(wildcards)
+    return {"file": path, "digest": file_digest(path)}
+
+
 for (_machine, _run), _spec in RUNS.items():
     if _spec.get("file") in ("identification.parquet",) and _spec.get("format") != "parquet":
         raise ConfigError(
@@ -296,6 +332,7 @@ MODEL_OUTPUTS = [
     "figures/mode_shapes.png",
 ]
 FRF_OUTPUTS = [
+    "plausibility.tsv",
     "frf.parquet",
     "floor.tsv",
     "findings.tsv",
@@ -316,6 +353,7 @@ METHODS_OUTPUTS = ["comparison.tsv", "figures/methods.png"]
 FIT_OUTPUTS = [
     "features.parquet",
     "features.tsv",
+    "findings.tsv",
     "models.parquet",
     "figures/bode_fit.png",
     "figures/stabilization.png",

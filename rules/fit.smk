@@ -8,6 +8,7 @@ rule fit:
     output:
         features="results/{machine}/fit/{run}/features.parquet",
         table="results/{machine}/fit/{run}/features.tsv",
+        findings="results/{machine}/fit/{run}/findings.tsv",
         models="results/{machine}/fit/{run}/models.parquet",
         bode="results/{machine}/fit/{run}/figures/bode_fit.png",
         stabilization="results/{machine}/fit/{run}/figures/stabilization.png",

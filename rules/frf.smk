@@ -2,9 +2,39 @@
 # (or, for a run with format uff, a user's UFF58 FRFs when no raw log exists).
 
 
-rule frf:
+rule plausibility:
+    # the log against the nominal model, before the FRF (ambid.plausibility.check_units): frequencies, compliance and
+    # coil currents within 30x of the model, or one error naming the likely unit
     input:
         unpack(frf_input),
+        machine=machine_model_file,
+    output:
+        table="results/{machine}/frf/{run}/plausibility.tsv",
+    log:
+        "logs/{machine}/plausibility_{run}.log",
+    conda:
+        "../workflow/envs/ambid.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,  # minutes (cluster executors)
+    params:
+        machine_config=machine_config,
+        source=log_source,
+        library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: the log against the nominal model (frequency, position and current units)"
+    script:
+        "../workflow/scripts/plausibility.py"
+
+
+rule frf:
+    # an FRF only of a log that passed the check against the model (so a model change re-runs both; the FRF's bytes
+    # do not change), then the log's model-free checks (ambid.plausibility.check_log: radial runs, outlier cells).
+    # Not ancient(): Snakemake then skips the FRF's own reasons to re-run (a changed frf section) while the check re-runs.
+    input:
+        unpack(frf_input),
+        plausibility="results/{machine}/frf/{run}/plausibility.tsv",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         floor="results/{machine}/frf/{run}/floor.tsv",
@@ -24,7 +54,8 @@ rule frf:
         mem_mb=1000,
         runtime=10,  # minutes (cluster executors)
     params:
-        floor=config["frf"],
+        settings=config["frf"],
+        source=log_source,
         dpi=config["figures"]["dpi"],
         uff_options=uff_options,
         library=LIBRARY_DIGEST,
@@ -112,6 +143,7 @@ rule import_log:
     params:
         format=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)]["format"],
         units=reader_units,
+        source=log_source,
         library=LIBRARY_DIGEST,
     # a user's log (thesis-style .m, plain CSV / Parquet table, MATLAB .mat), converted once into the canonical
     # Parquet log (ambid.readers); a .m file is parsed by a strict grammar, never evaluated

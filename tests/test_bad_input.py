@@ -4,6 +4,8 @@ Each test puts one defect where a user would (a log in data/, a key in config/) 
 the working directory, as `make run` would.
 """
 
+import re
+
 import numpy as np
 import pytest
 import yaml
@@ -141,6 +143,300 @@ def test_negative_element_length_fails_before_any_job(workdir):
     text = result.stdout + result.stderr
     assert result.returncode != 0 and "config/machines/demo20.yaml: rotor.elements[0].length_m: -0.02" in text
     assert_nothing_written(workdir, "results")
+
+
+# ------------------------------------------------------------------ issue 16: trust, or a clear error
+def dry_rules(output):
+    """The rules a dry run would run, from its Job stats table (empty when there is nothing to be done)."""
+    if "Job stats:" not in output:
+        return set()
+    table = output.split("Job stats:", 1)[1].split("total", 1)[0]
+    return set(re.findall(r"^(\w+)\s+\d+\s*$", table, re.M))
+
+
+def shipped_log_lines(workdir):
+    return (workdir / EXAMPLE_LOG).read_text().splitlines()
+
+
+def demo20_only(workdir, **sections):
+    """The default demo20 run on the shipped .m log (and nothing of hs_eden_like); ``sections`` update config sections."""
+    def change(config):
+        config["machines"] = {"demo20": config["machines"]["demo20"]}
+        for name, values in sections.items():
+            config[name].update(values)
+
+    edit_config(workdir, change)
+
+
+def write_lines(workdir, lines):
+    (workdir / EXAMPLE_LOG).write_text("\n".join(lines) + "\n")
+
+
+def typo(workdir, line=20, column=7, value="1e+05"):
+    """One cell of the shipped .m changed (line 20, column 7: V2_DX of data_exc_dx row 13, 122.99 Hz)."""
+    lines = shipped_log_lines(workdir)
+    cells = lines[line - 1].split()
+    cells[column - 1] = value
+    lines[line - 1] = "  ".join(cells)
+    write_lines(workdir, lines)
+
+
+def without(workdir, *variables):
+    kept, skipping = [], False
+    for line in shipped_log_lines(workdir):
+        skipping = skipping or any(line.startswith(f"{name} = [") for name in variables)
+        if not skipping:
+            kept.append(line)
+        elif line.startswith("];"):
+            skipping = False
+    write_lines(workdir, kept)
+
+
+UPDATE = "results/demo20/update/thesis01/comparison.tsv"
+
+
+def test_case1_a_typo_is_refused_with_its_line(workdir):
+    demo20_only(workdir)
+    typo(workdir)
+    message = assert_fails_once(snakemake(workdir, UPDATE), f"{EXAMPLE_LOG}:20: data_exc_dx row 13, column 7 (V2_DX [um])")
+    assert "= 100000" in message and "times the noise" in message and "frf.outliers: exclude" in message
+    assert_nothing_written(workdir, "results/demo20/frf/thesis01/frf.parquet", "results/demo20/fit", "results/demo20/update")
+
+
+def test_case1_a_typo_excluded_when_allowed_leaves_the_update_right(workdir):
+    import pandas as pd
+
+    demo20_only(workdir, frf={"outliers": "exclude"})
+    typo(workdir)
+    result = snakemake(workdir, UPDATE, "results/demo20/fit/thesis01/findings.tsv")
+    assert result.returncode == 0, result.stderr[-3000:]
+    findings = pd.read_csv(workdir / "results/demo20/frf/thesis01/findings.tsv", sep="\t")
+    excluded = findings[findings["code"] == "outlier_excluded"].reset_index(drop=True)  # beside the floor's notes
+    assert len(excluded) == 1 and f"{EXAMPLE_LOG}:20" in excluded.loc[0, "message"]
+    assert set(findings["code"]) - {"outlier_excluded"} <= {"floor_fallback", "noise_rescaled"}
+    comparison = pd.read_csv(workdir / UPDATE, sep="\t")
+    first = comparison[(comparison["quantity"] == "frequency") & (comparison["root"] == "pole")]
+    assert first["measured"].between(455.0, 455.5).all() and first["updated"].between(454.0, 456.5).all()
+
+
+@pytest.mark.parametrize("missing, named", [(("data_exc_ny",), "NY (data_exc_ny)"),
+                                            (("data_exc_dy", "data_exc_nx", "data_exc_ny", "data_exc_z"), "DY (data_exc_dy)")])
+def test_case2_a_missing_radial_run_is_an_error_for_the_mimo_estimate(workdir, missing, named):
+    demo20_only(workdir)
+    without(workdir, *missing)
+    message = assert_fails_once(snakemake(workdir, "results/demo20/fit/thesis01/features.tsv"), EXAMPLE_LOG, named)
+    assert "frf.estimator: siso" in message
+    assert_nothing_written(workdir, "results/demo20/frf/thesis01/frf.parquet")
+
+
+GAINS = ("proportional_gain_a_per_m", "integral_gain_a_per_m_s", "derivative_gain_a_s_per_m")
+
+
+@pytest.mark.parametrize("case", ["delay 5 ms", "amplifier 10 Hz", "gain x10"])
+def test_case3_an_unstable_model_stops_with_its_verdict(workdir, case):
+    """The stability check judges the sampled loop with every effect, as the rig does (spectral radius > 1)."""
+    from test_workflow import edit_machine
+
+    demo20_only(workdir)
+    variants = {"delay 5 ms": [{"name": "delay", "parameters": {"delay_s": 5e-3}}],
+                "amplifier 10 Hz": [{"name": "amplifier_lowpass", "parameters": {"cutoff_hz": 10.0}}]}
+    if case in variants:
+        edit_config(workdir, lambda config: config["machines"]["demo20"]["variants"].update(probe={"effects": variants[case]}))
+        target, variant = "results/demo20/model/probe/stability.tsv", "probe"
+    else:
+        edit_machine(workdir, "demo20", lambda m: m["controller"]["radial"].update({k: 10 * m["controller"]["radial"][k]
+                                                                                      for k in GAINS}))
+        target, variant = "results/demo20/model/nominal/stability.tsv", "nominal"
+    message = assert_fails_once(snakemake(workdir, target), f"model variant '{variant}' is unstable in closed loop",
+                                "no ISO 14839-3 zone")
+    radius = float(message.split("spectral radius ")[1].split(" ")[0])
+    assert radius > 1.004
+    assert_nothing_written(workdir, target)
+
+
+def test_case4_a_log_replaced_by_an_older_file_reruns(workdir):
+    import os
+    import re
+    import subprocess
+    import tarfile
+
+    demo20_only(workdir)
+    assert snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet").returncode == 0
+    older = workdir / "older.m"
+    lines = shipped_log_lines(workdir)
+    cells = lines[19].split()
+    cells[6] = "-22.25+27.22i"  # a plausible, different value
+    lines[19] = "  ".join(cells)
+    older.write_text("\n".join(lines) + "\n")
+    os.utime(older, (1e9, 1e9))  # 2001
+    subprocess.run(["cp", "-p", str(older), str(workdir / EXAMPLE_LOG)], check=True)
+    dry = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet", "--dry-run")
+    assert {"import_log", "plausibility", "frf"} <= dry_rules(dry.stdout + dry.stderr), dry.stdout[-2000:]
+    assert snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet").returncode == 0
+    with tarfile.open(workdir / "logs.tar", "w") as archive:  # an archive unpacked over the run keeps old mtimes
+        cells[6] = "-22.26+27.22i"
+        lines[19] = "  ".join(cells)
+        older.write_text("\n".join(lines) + "\n")
+        os.utime(older, (1e9, 1e9))
+        archive.add(older, arcname=EXAMPLE_LOG)
+    with tarfile.open(workdir / "logs.tar") as archive:
+        archive.extractall(workdir, filter="data")
+    dry = snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet", "--dry-run")
+    assert "import_log" in dry_rules(dry.stdout + dry.stderr)
+
+
+def test_case4_a_leftover_converted_log_never_stands_for_another_m(workdir):
+    import os
+    import shutil
+
+    demo20_only(workdir)
+    assert snakemake(workdir, "data/demo20/thesis01/identification.parquet").returncode == 0
+    shutil.rmtree(workdir / ".snakemake")  # Snakemake no longer knows where the converted log came from
+    typo(workdir, value="-22.25+27.22i")
+    os.utime(workdir / EXAMPLE_LOG, (1e9, 1e9))  # the converted log looks newer than its .m
+    message = assert_fails_once(snakemake(workdir, "results/demo20/frf/thesis01/frf.parquet"),
+                                "data/demo20/thesis01/identification.parquet", f"is not the conversion of {EXAMPLE_LOG}")
+    assert "delete it" in message
+    assert_nothing_written(workdir, "results/demo20/frf/thesis01/frf.parquet")
+
+
+def shipped_log_as_parquet(workdir, change):
+    """The shipped log converted to Parquet by a user, ``change`` applied, as run user01 (source: data)."""
+    from ambid.mfile import read_thesis_m
+
+    frame = change(read_thesis_m(workdir / EXAMPLE_LOG))
+    write_raw_log(frame, user_run(workdir) / "identification.parquet")
+    return "results/demo20/fit/bad01/features.tsv"
+
+
+def scaled(channels, factor, frequency=1.0):
+    def change(frame):
+        chosen = frame["channel"].str.startswith(channels)
+        frame.loc[chosen, ["re", "im"]] *= factor
+        frame["frequency_hz"] *= frequency
+        return frame
+    return change
+
+
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        (scaled(("V2_",), 1e6), "positions look like um"),
+        (scaled(("none",), 1.0, 1e-3), "frequencies look like kHz"),
+        (scaled(("U2_", "I_"), 1e3), "currents look like mA"),
+        (lambda frame: frame[frame["excited_axis"] == "DX"], "no run excites DY, NX, NY"),
+    ],
+    ids=["um", "kHz", "mA", "single axis"],
+)
+def test_case5_wrong_units_and_single_axis_logs_are_named(workdir, change, named):
+    target = shipped_log_as_parquet(workdir, change)
+    message = assert_fails_once(snakemake(workdir, target), "data/demo20/bad01/identification.parquet", named)
+    assert "config/machines/demo20.yaml" in message or "MIMO" in message
+    assert_nothing_written(workdir, "results/demo20/frf/bad01/frf.parquet", "results/demo20/fit/bad01")
+
+
+def test_case6_a_categorical_axis_column_is_read(workdir):
+    def categorical(frame):
+        return frame.assign(excited_axis=frame["excited_axis"].astype("category"))
+
+    target = shipped_log_as_parquet(workdir, categorical)
+    result = snakemake(workdir, target)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_case6_a_huge_cell_is_an_outlier_with_its_rows(workdir):
+    def huge(frame):
+        frame.loc[(frame["excited_axis"] == "DX") & (frame["step"] == 12) & (frame["channel"] == "V2_DX"), "re"] = 1e300
+        return frame
+
+    message = assert_fails_once(snakemake(workdir, shipped_log_as_parquet(workdir, huge)),
+                                "data/demo20/bad01/identification.parquet: rows 240-259 (excited_axis=DX, step=12)")
+    assert "V2_DX = 1e+300" in message
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (lambda c: c["update"].update(stiffness_bounds=[2.0, 1e-3]), "config/config.yaml: update.stiffness_bounds"),
+        (lambda c: c["update"].update(damping_bounds=[0.2, 0.0]), "config/config.yaml: update.damping_bounds"),
+        (lambda c: c["machines"]["demo20"]["update"].update(tags=["desing"]), "machines.demo20.update.tags[0]"),
+        (lambda c: c["fit"].update(modes=99), "config/config.yaml: fit.modes"),
+        (lambda c: c["update"].update(modes=99), "config/config.yaml: update.modes"),
+        (lambda c: c["compare"].update(bands_hz=[1000, 0, 100]), "config/config.yaml: compare.bands_hz"),
+    ],
+    ids=["stiffness_bounds", "damping_bounds", "tags", "fit.modes", "update.modes", "bands_hz"],
+)
+def test_case6_7_config_errors_stop_before_any_job(workdir, change, key):
+    demo20_only(workdir)
+    edit_config(workdir, change)
+    result = snakemake(workdir)
+    text = result.stdout + result.stderr
+    assert result.returncode != 0 and key in text and "Traceback" not in text, text[-2000:]
+    assert_nothing_written(workdir, "results", "data/demo20/thesis01/identification.parquet")
+
+
+@pytest.mark.parametrize("where", ["config/config.yaml", "config/machines/demo20.yaml", "config/rigs/demo20.yaml"])
+def test_case7_duplicate_yaml_keys_are_errors(workdir, where):
+    from test_workflow import demo20_on_its_rig
+
+    if where.startswith("config/rigs"):
+        edit_config(workdir, demo20_on_its_rig)
+    path = workdir / where
+    text = path.read_text()
+    duplicated = {"config/config.yaml": ("  dpi: 120\n", "  dpi: 120\n  dpi: 60\n", "figures.dpi"),
+                  "config/machines/demo20.yaml": ("    youngs_modulus_pa: 2.0e+11\n",
+                                                  "    youngs_modulus_pa: 2.0e+11\n    youngs_modulus_pa: 2.0e+9\n",
+                                                  "materials.steel.youngs_modulus_pa"),
+                  "config/rigs/demo20.yaml": ("  gravity_m_s2: 9.81\n", "  gravity_m_s2: 9.81\n  gravity_m_s2: 0.0\n",
+                                              "truth.gravity_m_s2")}[where]
+    assert duplicated[0] in text
+    path.write_text(text.replace(duplicated[0], duplicated[1], 1))
+    result = snakemake(workdir, "--dry-run")
+    assert result.returncode != 0 and f"{where}: {duplicated[2]}: duplicate key" in result.stdout + result.stderr
+
+
+def test_case6_an_absurd_bias_current_stops_before_any_job(workdir):
+    from test_workflow import edit_machine
+
+    edit_machine(workdir, "demo20", lambda m: m["bearings"]["radial"]["electromagnet"].update(bias_current_a=1e6))
+    result = snakemake(workdir)
+    text = result.stdout + result.stderr
+    assert result.returncode != 0 and "Traceback" not in text
+    assert "config/machines/demo20.yaml: bearings.radial.electromagnet.bias_current_a: 1e+06 A" in text
+    assert_nothing_written(workdir, "results")
+
+
+def test_case9_an_oversized_m_file_is_refused(workdir):
+    demo20_only(workdir)
+    (workdir / EXAMPLE_LOG).write_bytes(b"data_exc_dx = [" + b"1 " * 10_000_000 + b"];\n")  # 20 MB on one line
+    assert_fails_once(snakemake(workdir, "data/demo20/thesis01/identification.parquet"),
+                      f"{EXAMPLE_LOG}:1:65537: line longer than 65536 bytes")
+    assert_nothing_written(workdir, "data/demo20/thesis01/identification.parquet")
+
+
+def test_case4_a_machine_file_or_config_section_changed_with_an_older_time_reruns(workdir):
+    """Content, not time: the machine file re-runs the check against the model, the FRF after it and the fit; a fit
+    setting the fit alone."""
+    import os
+    import re
+
+    demo20_only(workdir)
+    target = "results/demo20/fit/thesis01/features.tsv"
+    assert snakemake(workdir, target).returncode == 0
+    for path, old, new, rules in (("config/machines/demo20.yaml", "loss_factor: 0.004", "loss_factor: 0.005",
+                                   {"plausibility", "frf", "fit"}),
+                                  ("config/config.yaml", "max_chi2: 300.0", "max_chi2: 200.0", {"fit"})):
+        file = workdir / path
+        text = file.read_text()
+        assert old in text
+        file.write_text(text.replace(old, new))
+        os.utime(file, (1e9, 1e9))
+        dry = snakemake(workdir, target, "--dry-run")
+        jobs = dry_rules(dry.stdout + dry.stderr)
+        assert rules <= jobs, dry.stdout[-2000:]
+        assert "import_log" not in jobs and ("frf" in jobs) == ("frf" in rules)
+        file.write_text(text)
+        os.utime(file, (1e9, 1e9))
 
 
 def test_plain_parquet_is_refused_naming_the_keys_and_the_way_in(workdir):

@@ -50,3 +50,13 @@ class TestForceLaw:
 def test_invalid_parameters_name_the_key():
     with pytest.raises(ConfigError, match="nominal_air_gap_m"):
         ActuatorAxis(6e-4, 80, 0.3, -1e-4, 0.0, 5.0)
+
+
+def test_a_bias_beyond_saturation_is_refused():
+    from ambid.bearing import ActuatorAxis
+    from ambid.errors import ConfigError
+
+    axis = dict(pole_area_m2=4e-4, turns=80, pole_angle_rad=np.pi / 8, nominal_air_gap_m=5e-4, iron_path_m=1e-4)
+    assert ActuatorAxis(bias_current_a=3.0, **axis).bias_flux_density_t == pytest.approx(0.274, abs=1e-3)
+    with pytest.raises(ConfigError, match=r"bias_current_a: 1e\+06 A gives a bias flux density .* 9.14e\+04 T"):
+        ActuatorAxis(bias_current_a=1e6, **axis)

@@ -139,3 +139,96 @@ def test_channel_sets():
     assert len(select_channels("all")) == 16
     with pytest.raises(FitError, match="fit.channels"):
         select_channels("everything")
+
+
+def test_fit_modes_beyond_the_diagram_are_a_config_error():
+    from ambid.channel_fit import max_fit_modes
+    from ambid.errors import ConfigError
+
+    assert max_fit_modes({"modes": None, "orders": None}) == 8  # orders 6 ... 16
+    assert max_fit_modes({"modes": 3, "orders": [8, 10]}) == 3
+    with pytest.raises(ConfigError, match=r"^fit.modes: 99 flexible modes need a denominator order >= 198"):
+        max_fit_modes({"modes": 99, "orders": None})
+
+
+class TestVerdict:
+    """Fits that fail are flagged: chi2/dof above fit.max_chi2, a negative delay, an overdamped 'resonance'."""
+
+    @pytest.fixture(scope="class")
+    @staticmethod
+    def fitted():
+        truth = truth_channel()
+        g = noisy(truth.frequency_response(F), 0.01, 3)
+        return fit_channel(F, g, std=0.01 * np.abs(truth.frequency_response(F))), g
+
+    def test_a_good_fit_is_not_flagged(self, fitted):
+        from ambid.channel_fit import feature_rows, fit_verdict
+
+        fit, g = fitted
+        flag, findings = fit_verdict(fit, F, g, None, "DX/DX")
+        assert flag == "" and findings == []
+        assert {row["flag"] for row in feature_rows(fit, "DX", "DX", "output_error", flag)} == {""}
+
+    def test_flags_and_findings(self, fitted):
+        from dataclasses import replace
+
+        from ambid.channel_fit import OVERDAMPED, feature_rows, fit_verdict
+
+        fit, g = fitted
+        flag, findings = fit_verdict(replace(fit, cost=2025.75), F, g, None, "DX/NX", max_chi2=300.0)
+        assert flag == "fit_failed" and findings[0].severity == "failure" and "chi2/dof 2025.75 " in findings[0].message
+        assert {row["flag"] for row in feature_rows(fit, "DX", "NX", "output_error", flag)} == {"fit_failed"}
+        backwards = replace(fit, model=replace(fit.model, delay_s=-110e-6))
+        flag, findings = fit_verdict(backwards, F, g, None, "NX/NX")
+        assert flag == "negative_delay" and "-110 us" in findings[0].message
+        rows = fit.features + [{"root": "pole", "kind": "resonance", "number": 2, "frequency_hz": 96.2,
+                                "damping_ratio": 0.57}]
+        flag, findings = fit_verdict(replace(fit, features=rows), F, g, None, "DX/DX")
+        assert flag == "" and [f.code for f in findings] == ["overdamped"] and OVERDAMPED <= 0.3
+        flagged = [r for r in feature_rows(replace(fit, features=rows), "DX", "DX", "output_error") if r["flag"]]
+        assert [(r["frequency_hz"], r["flag"]) for r in flagged] == [(96.2, "overdamped")]
+
+
+def test_a_non_causal_fit_is_refit_with_a_causal_structure(demo_config):
+    """The cross channel of a levitated rotor with a 50 us delay: the first structure fits to the noise with a
+    negative delay (a nonminimum-phase zero pair beyond the band trades phase with it); the refit folds the zeros
+    beyond the band into the residual flexibility and recovers the delay and the mode, unflagged."""
+    from ambid.channel_fit import fit_verdict, real_zero_hz
+    from ambid.effects import effect_from_config
+    from ambid.machine import machine_from_config
+
+    machine = machine_from_config(demo_config)
+    plant = Plant(machine)
+    delayed = Plant(machine.with_effects([effect_from_config({"name": "delay", "parameters": {"delay_s": 5e-5}}, "e")]))
+    f = np.linspace(2.0, 1000.0, 100)
+    hold = zero_order_hold(f, machine.sample_time_s)
+    g = noisy(delayed.radial_frequency_response(f)[:, 0, 2] * hold, 0.003, 5)  # DX <- NX
+    known = known_response(plant, "DX", "NX", f)
+    fit = fit_channel(f, g, std=0.003 * np.abs(g), known=known, rigid_hint_hz=rigid_pole_hz(plant),
+                      zero_hint_hz=real_zero_hz(plant, "DX", "NX", f.max()))
+    assert fit.model.delay_s == pytest.approx(5e-5, rel=0.1) and fit.cost < 10
+    assert any("zeros beyond the band as residual flexibility" in note for note in fit.dropped)
+    assert [round(r["frequency_hz"]) for r in fit.features if r["kind"] == "resonance"] == [706]
+    assert fit_verdict(fit, f, g, known, "DX/NX")[0] == ""
+
+
+def test_a_pole_zero_dipole_is_flagged_not_a_mode():
+    """A pole pair nearly cancelled by a zero pair (195.7 Hz, zeta 0.18, as on demo20's rig log) bends |G| by ~1 %."""
+    from ambid.channel_fit import ChannelFit, dipole_hz, feature_rows, fit_verdict
+
+    w = 2 * np.pi
+    truth = truth_channel()
+    pole, zero = (w * 195.7, 0.1799), (w * 195.674, 0.1776)
+    with_dipole = ChannelModel(truth.gain, truth.rigid_rad_s, np.append(truth.mode_rad_s, pole[0]),
+                               np.append(truth.mode_damping, pole[1]),
+                               np.vstack([truth.zero_factors, [2 * zero[1] * zero[0], zero[0] ** 2]]), delay_s=truth.delay_s)
+    assert [(round(p), round(z)) for p, z in dipole_hz(with_dipole, (1.0, 750.0))] == [(196, 196)]
+    assert dipole_hz(truth, (1.0, 750.0)) == []  # the mode at 600 Hz and the anti-resonance at 480 Hz are no dipole
+    rows = [{"root": "pole", "kind": "resonance", "number": 1, "frequency_hz": pole[0] / w, "damping_ratio": pole[1]},
+            {"root": "zero", "kind": "anti_resonance", "number": 1, "frequency_hz": zero[0] / w, "damping_ratio": zero[1]},
+            {"root": "pole", "kind": "resonance", "number": 2, "frequency_hz": 600.0, "damping_ratio": 0.01}]
+    fit = ChannelFit(with_dipole, rows, [], 8, 1.0, 10)
+    g = with_dipole.frequency_response(F)
+    flag, findings = fit_verdict(fit, F, g, None, "DX/DX")
+    assert flag == "" and [f.code for f in findings] == ["dipole"]
+    assert [r["flag"] for r in feature_rows(fit, "DX", "DX", "output_error", band_hz=(1.0, 750.0))] == ["dipole", "dipole", ""]

@@ -47,3 +47,37 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path):
             temporary.write_text("half")
             raise RuntimeError("crash")
     assert not target.exists() and list(tmp_path.iterdir()) == []
+
+
+class TestStrictYaml:
+    def test_duplicate_keys_are_refused_with_key_and_lines(self, tmp_path):
+        from ambid.errors import ConfigError
+        from ambid.io import load_yaml, read_yaml
+
+        text = "materials:\n  steel:\n    youngs_modulus_pa: 2.0e+11\n    youngs_modulus_pa: 2.0e+9\n"
+        with pytest.raises(ConfigError, match=r"^m.yaml: materials.steel.youngs_modulus_pa: duplicate key \(lines 3 and 4\)"):
+            load_yaml(text, "m.yaml")
+        with pytest.raises(ConfigError, match=r"effects\[1\].name: duplicate key"):
+            load_yaml("effects:\n  - {name: delay}\n  - {name: delay, name: amplifier_lowpass}\n", "m.yaml")
+        assert load_yaml("a: {b: 1, c: 2}\nd: [1, 2]\n", "m.yaml") == {"a": {"b": 1, "c": 2}, "d": [1, 2]}
+        path = tmp_path / "bad.yaml"
+        path.write_text("a: [1, 2\n")
+        with pytest.raises(ConfigError, match=r"bad.yaml: \(file\): not valid YAML at line 2, column 1"):
+            read_yaml(path)
+        path.write_text("- 1\n")
+        with pytest.raises(ConfigError, match="machines.m.model: .*does not hold a mapping"):
+            read_yaml(path, "machines.m.model")
+
+
+def test_file_digest_follows_content_not_time(tmp_path):
+    import os
+
+    from ambid.io import file_digest
+
+    path = tmp_path / "log.m"
+    path.write_text("data_exc_dx = [1 2];\n")
+    first = file_digest(path)
+    path.write_text("data_exc_dx = [1 3];\n")
+    os.utime(path, (1e9, 1e9))  # an older modification time, as cp -p / tar leave it
+    assert file_digest(path) != first and len(first) == 16
+    assert file_digest(tmp_path / "absent") == "missing"

@@ -261,6 +261,21 @@ def test_noise_from_scatter_needs_three_steps():
         noise_from_scatter(frame, "run.m")
 
 
+def test_categorical_columns_are_read_as_their_values(frame, tmp_path):
+    """A log from another writer may store its names as pandas categories or Parquet dictionaries."""
+    from ambid.io import write_parquet
+    from ambid.logs import UNITS
+
+    categorical = frame.assign(excited_axis=frame["excited_axis"].astype("category"),
+                               channel=frame["channel"].astype("category"), step=frame["step"].astype("category"))
+    validate_identification_log(categorical, "x.parquet")
+    path = tmp_path / "identification.parquet"
+    write_parquet(categorical, path, units=UNITS, kind="identification_log")
+    back, _ = read_identification_log(path)
+    assert not any(isinstance(back[c].dtype, pd.CategoricalDtype) for c in back.columns)
+    assert_array_equal(back["excited_axis"].to_numpy(dtype=object), frame["excited_axis"].to_numpy(dtype=object))
+
+
 def own_bearing_only(frame):
     """Each step with its own bearing's channels only (radial steps 16, axial steps 4)."""
     radial = frame["excited_axis"] != "Z"

@@ -495,6 +495,49 @@ def test_writer_number_format_round_trips_exactly(name, elements):
     assert parsed.tobytes() == np.array(expected, dtype=np.complex128).tobytes()
 
 
+def test_a_step_keeps_its_line(tmp_path):
+    path = tmp_path / "identification.m"
+    row = "  ".join(["10", "0.5"] + ["1+0i"] * 20)
+    split = "  ".join(["20", "0.5"] + ["1+0i"] * 10) + " ...\n  " + "  ".join(["1+0i"] * 10)
+    path.write_text(f"% header\n\ndata_exc_nx = [\n{row};\n{split};\n{row.replace('10', '30', 1)};\n];\n")
+    lines = read_thesis_m(path).attrs["source_lines"]
+    assert lines["NX"][0] == 4 and lines["NX"][2] == 7
+    assert lines["NX"][1] == [5] * 12 + [6] * 10  # a row continued over two lines: each element's line
+
+
+def test_an_oversized_line_is_refused_without_reading_the_file(tmp_path, monkeypatch):
+    import builtins
+
+    import ambid.mfile as mfile
+
+    path = tmp_path / "identification.m"
+    path.write_bytes(b"data_exc_dx = [" + b"1 " * 10_000_000 + b"];\n")  # 20 MB on one line
+    read = []
+
+    class Counting:
+        def __init__(self, handle):
+            self.handle = handle
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.handle.close()
+
+        def fileno(self):
+            return self.handle.fileno()
+
+        def read(self, size):
+            data = self.handle.read(size)
+            read.append(len(data))
+            return data
+
+    monkeypatch.setattr(mfile, "open", lambda *args: Counting(builtins.open(*args)), raising=False)
+    with pytest.raises(MFileParseError, match=r"identification.m:1:65537: line longer than 65536 bytes"):
+        read_thesis_m(path)
+    assert sum(read) <= 2 * mfile.MAX_LINE_BYTES  # 128 KiB of the 20 MB
+
+
 def own_channels_only(frame):
     """The log as the 18 + 6 column layout holds it: each step its own bearing's channels."""
     radial = frame["excited_axis"] != "Z"

@@ -7,6 +7,7 @@ import pytest
 from ambid.effects import effect_from_config
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
+from ambid.errors import ConfigError
 from ambid.update import (UpdateError, UpdateSettings, comparison_rows, identifiability, measured_features,
                           nelder_mead_update, reference_features, update_channels, update_model, update_problem,
                           updated_machine_config)
@@ -118,7 +119,42 @@ def test_bad_input_gives_update_errors(demo_machine):
                                   "frequency_std_hz", "damping_std"])
     with pytest.raises(UpdateError, match="no lightly damped"):
         measured_features(empty, SAME_PLANE, 1)
-    with pytest.raises(UpdateError, match="optimizer"):
+    with pytest.raises(ConfigError, match="update.optimizer"):
         UpdateSettings.from_config({"optimizer": "simplex"})
     with pytest.raises(Exception, match="update.bogus"):
         UpdateSettings.from_config({"bogus": 1})
+
+
+@pytest.mark.parametrize(
+    "section, key",
+    [
+        ({"stiffness_bounds": [2.0, 1e-3]}, "update.stiffness_bounds"),
+        ({"stiffness_bounds": [0.5, 0.9]}, "update.stiffness_bounds"),
+        ({"damping_bounds": [0.2, 0.0]}, "update.damping_bounds"),
+        ({"modes": 0}, "update.modes"),
+    ],
+)
+def test_settings_that_cannot_work_name_their_key(section, key):
+    with pytest.raises(ConfigError, match=f"^{key}: "):
+        UpdateSettings.from_config(section)
+
+
+def test_settings_against_the_machine(demo_machine):
+    settings = UpdateSettings.from_config({"modes": 2}, {"tags": ["design"]})
+    settings.check_against(demo_machine, "machines.demo20.update")
+    with pytest.raises(ConfigError, match=r"machines.demo20.update.tags\[1\]: no element of machine .* carries the tag "
+                                          r"'desing'; its tags: \['design'\]"):
+        UpdateSettings.from_config({}, {"tags": ["design", "desing"]}).check_against(demo_machine, "machines.demo20.update")
+    with pytest.raises(ConfigError, match=r"update.modes: 99 flexible modes, but the model of .* retains 10"):
+        UpdateSettings.from_config({"modes": 99}, {"tags": ["design"]}).check_against(demo_machine)
+
+
+def test_flagged_features_stay_out_of_the_update(demo_machine):
+    features = features_of(demo_machine, 1000.0).assign(flag="")
+    everything = measured_features(features, SAME_PLANE, 1)
+    failed = features["output"].eq("DX") & features["input"].eq("DX")
+    flagged = measured_features(features.assign(flag=np.where(failed, "fit_failed", "")), SAME_PLANE, 1)
+    assert len(flagged) == len(everything) - int(failed.sum())
+    assert not ((flagged["output"] == "DX") & (flagged["input"] == "DX")).any()
+    with pytest.raises(UpdateError, match="flagged fits left out"):
+        measured_features(features.assign(flag="overdamped"), SAME_PLANE, 1)

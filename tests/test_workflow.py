@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -152,20 +153,57 @@ def test_unknown_calibration_setting_is_rejected(workdir):
     assert result.returncode != 0 and "tolerance_um" in result.stdout + result.stderr
 
 
+def plant_log_steps(plant, rng, relative_noise=1e-4, frequencies=None, sensor_floor=False):
+    """Step records of a noisy identification of ``plant`` (unit excitation, its FRF times the hold, an ideal amplifier).
+
+    ``frequencies`` (radial, axial) default to the machine's identification grids; ``sensor_floor``: every
+    channel scatters too, 1e-9 m and 1e-5 A (a log without a noise estimate, the thesis .m format, needs that).
+    """
+    from ambid.logs import CHANNELS
+    from ambid.loop import zero_order_hold
+    from ambid.machine import ALL_AXES, RADIAL_AXES
+
+    machine = plant.machine
+    steps = []
+    for axis in ALL_AXES:
+        if frequencies is None:
+            frequency = (machine.axial_grid if axis == "Z" else machine.radial_grid).frequency_hz
+        else:
+            frequency = frequencies[axis == "Z"]
+        hold = zero_order_hold(frequency, machine.sample_time_s)
+        if axis == "Z":
+            response = {"Z": plant.axial_frequency_response(frequency) * hold}
+        else:
+            matrix = plant.radial_frequency_response(frequency) * hold[:, None, None]
+            response = {out: matrix[:, k, RADIAL_AXES.index(axis)] for k, out in enumerate(RADIAL_AXES)}
+        for k, f in enumerate(frequency):
+            coefficients = np.zeros(len(CHANNELS), dtype=complex)
+            coefficients[CHANNELS.index(f"U2_{axis}")] = 1.0
+            for out, values in response.items():
+                coefficients[CHANNELS.index(f"V2_{out}")] = values[k] * (1 + relative_noise * rng.standard_normal())
+            # coil current (upper - lower) / 2: an ideal amplifier, sampled at the start of the cycle (one cycle behind U2)
+            cycle_behind = np.exp(-2j * np.pi * f * machine.sample_time_s)
+            coefficients[CHANNELS.index(f"I_upper_{axis}")] = 0.5 + cycle_behind
+            coefficients[CHANNELS.index(f"I_lower_{axis}")] = 0.5 - cycle_behind
+            if sensor_floor:
+                floor = np.array([1e-9 if name.startswith("V2_") else 1e-5 for name in CHANNELS])
+                coefficients += floor * (rng.standard_normal(len(CHANNELS)) + 1j * rng.standard_normal(len(CHANNELS)))
+            noise = np.abs(coefficients) * relative_noise + 1e-12
+            steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 1.0, "attempts": 1,
+                          "coefficients": coefficients, "noise_std": noise})
+    return steps
+
+
 def test_real_logs_in_thesis_m_format(workdir):
     """A user's .m file in data/ (no rig): parsed, never evaluated, and carried to the FRF stage."""
-    import numpy as np
-
-    from ambid.logs import CHANNELS, identification_frame
+    from ambid.logs import identification_frame
+    from ambid.machine import machine_from_config
     from ambid.mfile import write_thesis_m
+    from ambid.plant import Plant
 
-    rng = np.random.default_rng(0)
-    steps = [
-        {"excited_axis": axis, "step": k, "frequency_hz": 10.0 + 5 * k, "amplitude_a": 0.5, "attempts": 1,
-         "coefficients": rng.normal(size=len(CHANNELS)) + 1j * rng.normal(size=len(CHANNELS)) + 1.0,
-         "noise_std": np.full(len(CHANNELS), 1e-3)}
-        for axis in ("DX", "DY", "NX", "NY", "Z") for k in range(6)
-    ]
+    plant = Plant(machine_from_config(yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text())))
+    grid = 10.0 + 5 * np.arange(6)
+    steps = plant_log_steps(plant, np.random.default_rng(0), 1e-3, (grid, grid), sensor_floor=True)
     run = workdir / "data/demo20/mine01"
     run.mkdir(parents=True)
     write_thesis_m(identification_frame(steps), run / "identification.m")
@@ -238,40 +276,15 @@ def test_lint_and_format_are_clean():
 
 def test_fit_and_update_stages_on_a_user_log(workdir):
     """A log of the thesis' reference rotor (ch. 5.3) dropped in data/: fit -> update -> an updated machine."""
-    import numpy as np
-
     from ambid.effects import effect_from_config
-    from ambid.logs import CHANNELS, identification_frame, write_identification_log
-    from ambid.loop import zero_order_hold
-    from ambid.machine import ALL_AXES, RADIAL_AXES, machine_from_config
+    from ambid.logs import identification_frame, write_identification_log
+    from ambid.machine import machine_from_config
     from ambid.plant import Plant
 
     nominal = machine_from_config(yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text()))
     scale = {"tag": "design", "scale": [0.5385, 0.4005, 0.2055, 0.0945]}  # 107.7, 80.1, 41.1, 18.9 GPa
     reference = Plant(nominal.with_effects([effect_from_config({"name": "element_stiffness", "parameters": scale}, "e")]))
-    rng = np.random.default_rng(7)
-    steps = []
-    for axis in ALL_AXES:
-        grid = nominal.axial_grid if axis == "Z" else nominal.radial_grid
-        frequency = grid.frequency_hz
-        hold = zero_order_hold(frequency, nominal.sample_time_s)
-        if axis == "Z":
-            response = {"Z": reference.axial_frequency_response(frequency) * hold}
-        else:
-            matrix = reference.radial_frequency_response(frequency) * hold[:, None, None]
-            response = {out: matrix[:, k, RADIAL_AXES.index(axis)] for k, out in enumerate(RADIAL_AXES)}
-        for k, f in enumerate(frequency):
-            coefficients = np.zeros(len(CHANNELS), dtype=complex)
-            coefficients[CHANNELS.index(f"U2_{axis}")] = 1.0
-            for out, values in response.items():
-                coefficients[CHANNELS.index(f"V2_{out}")] = values[k] * (1 + 1e-4 * rng.standard_normal())
-            # coil current (upper - lower) / 2: an ideal amplifier, sampled at the start of the cycle (one cycle behind U2)
-            cycle_behind = np.exp(-2j * np.pi * f * nominal.sample_time_s)
-            coefficients[CHANNELS.index(f"I_upper_{axis}")] = 0.5 + cycle_behind
-            coefficients[CHANNELS.index(f"I_lower_{axis}")] = 0.5 - cycle_behind
-            noise = np.abs(coefficients) * 1e-4 + 1e-12
-            steps.append({"excited_axis": axis, "step": k, "frequency_hz": f, "amplitude_a": 1.0, "attempts": 1,
-                          "coefficients": coefficients, "noise_std": noise})
+    steps = plant_log_steps(reference, np.random.default_rng(7))
     run = workdir / "data/demo20/user01"
     run.mkdir(parents=True)
     write_identification_log(identification_frame(steps), run / "identification.parquet")

@@ -22,6 +22,8 @@ from .errors import ConfigError
 __all__ = ["MU0", "ActuatorAxis", "ActuatorAxes", "force", "force_derivatives"]
 
 MU0 = 4e-7 * np.pi  # vacuum permeability [H/m] (air is taken equal to vacuum)
+#: Highest plausible bias flux density [T]: above the saturation of any soft magnetic steel (cobalt-iron: 2.35 T).
+MAX_BIAS_FLUX_DENSITY_T = 2.5
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,15 @@ class ActuatorAxis:
             raise ConfigError("iron_path_m", f"must be >= 0, got {self.iron_path_m}")
         if not 0 <= self.pole_angle_rad < np.pi / 2:
             raise ConfigError("pole_angle_rad", "must lie in [0, pi/2)")
+        if not self.bias_flux_density_t < MAX_BIAS_FLUX_DENSITY_T:
+            raise ConfigError("bias_current_a", f"{self.bias_current_a:g} A gives a bias flux density mu0 N i_b / (2 g0 + b) = "
+                              f"{self.bias_flux_density_t:.3g} T, beyond the saturation of any electrical steel (about 2 T): "
+                              "check bias_current_a, turns and nominal_air_gap_m (SI units: A, -, m)")
+
+    @property
+    def bias_flux_density_t(self):
+        """Air-gap flux density at the bias current, ``mu0 N i_b / (2 g0 + b)`` [T] (eq. 3.2-3.5)."""
+        return MU0 * self.turns * self.bias_current_a / (2 * self.nominal_air_gap_m + self.iron_path_m)
 
     @property
     def force_constant(self):

@@ -31,14 +31,17 @@ import numpy as np
 import scipy.optimize
 import scipy.signal
 
-from .errors import AmbidError
+from .errors import AmbidError, ConfigError
+from .findings import Finding
 from .fit import classify_poles, sanathanan_koerner, stabilization
 from .loop import zero_order_hold
 from .machine import RADIAL_AXES
+from .modal_features import LIGHT_DAMPING
 from .plant import RIGID_MODES, damping_ratio
 
 __all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "select_modes", "known_response", "rigid_pole_hz",
-           "select_channels", "feature_rows", "model_rows", "model_from_row"]
+           "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes", "real_zero_hz",
+           "fit_verdict", "dipole_hz", "MAX_CHI2", "OVERDAMPED", "DIPOLE"]
 
 
 class FitError(AmbidError):
@@ -295,6 +298,13 @@ def known_response(plant, output_axis, input_axis, frequency_hz):
     return known
 
 
+def real_zero_hz(plant, output_axis, input_axis, band_hz):
+    """Magnitudes of the nominal channel's real zero pairs below ``band_hz`` [Hz], ascending (starting values)."""
+    zeros = plant.zeros(output_axis, input_axis)
+    real = np.abs(zeros[(np.abs(zeros.imag) <= 1e-6 * np.abs(zeros)) & (zeros.real > 0)].real) / (2 * np.pi)
+    return np.unique(np.round(real[real < band_hz], 9))
+
+
 def rigid_pole_hz(plant):
     """Magnitudes of the nominal plant's unstable real poles [Hz], ascending: starting values for merged pairs."""
     poles, _ = plant.poles()
@@ -353,7 +363,7 @@ def _cancels(pole, zero, x, tolerance):
     return bool(np.max(np.abs(ratio - 1)) < tolerance)
 
 
-def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz):
+def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz, zero_band=1.5):
     """Structure and scaled starting values from a linear fit; what was dropped and why.
 
     Returns rigid magnitudes, whether they are the hint (the linear fit showed
@@ -413,13 +423,13 @@ def _starting_point(fit, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_
     # numerator factors in and near the band; far zeros only bend the response: residual flexibility
     factors, residual = [], 0.0
     for z in complex_zeros:
-        if abs(z) <= 1.5 * top:
+        if abs(z) <= zero_band * top:
             factors.append((-2 * z.real, abs(z) ** 2))
         else:
             residual += 1.0 / abs(z) ** 2
     real_zeros = zeros[is_real(zeros)].real
     for c1, c0 in _pair_real(real_zeros):
-        if abs(c0) <= (1.5 * top) ** 2:
+        if abs(c0) <= (zero_band * top) ** 2:
             factors.append((c1, c0))
         else:
             residual += 1.0 / c0
@@ -437,7 +447,7 @@ def _scan_delay(shape, data, weights, x, top_delay):
 
 # ------------------------------------------------------------------- the fit
 def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODES, modes=None, orders=None,
-                lowpass=False, delay=True, rigid_hint_hz=None, max_iterations=200):
+                lowpass=False, delay=True, rigid_hint_hz=None, zero_hint_hz=None, max_iterations=200):
     """Fit one channel of an AMB plant FRF: stabilization, linear start, output-error refinement.
 
     Parameters
@@ -464,6 +474,9 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
     rigid_hint_hz : array, optional
         Starting rigid-pole magnitudes [Hz] should the linear fit merge them
         (for example from the nominal model).
+    zero_hint_hz : array, optional
+        Magnitudes [Hz] of the channel's real zero pairs in the nominal model
+        (`real_zero_hz`): starting values of the zeros that go with a hinted rigid pair.
 
     Returns
     -------
@@ -491,8 +504,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
     x = 1j * f / np.max(f)
     reduced = g / h
     reduced_sigma = sigma / np.abs(h)
-    base = 2 * n_rigid
-    orders = list(range(base + 2, base + 13, 2)) if orders is None else list(orders)
+    orders = fit_orders(orders, n_rigid)
     diagram = stabilization(f, reduced, orders, std=reduced_sigma)
     dropped = []
     # the stated noise must explain what even the highest-order linear fit leaves; where it does
@@ -512,6 +524,40 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
         mode_hz = ranked if ranked.size <= modes else _most_persistent(diagram, ranked, modes)
         if mode_hz.size < modes:
             raise FitError(f"asked for {modes} flexible modes; the stabilization diagram shows {mode_hz.size}")
+    noise_known = std is not None and np.all(np.asarray(std) > 0)
+    problem = (f, x, reduced, reduced_sigma, orders, omega, n_rigid, relative_noise, rigid_hint_hz, zero_hint_hz,
+               noise_known, lowpass, delay, max_iterations)
+    best, order, rigid_from_hint, notes = _fit_structure(problem, mode_hz)
+    if modes is None and not _acceptable(best, omega, (f.min(), f.max())):
+        # the structure the diagram suggests fits badly, needs a negative delay or an overdamped "mode": the
+        # same data with fewer modes and with the zeros beyond the band as residual flexibility
+        for alternative, zero_band in _alternative_structures(diagram, mode_hz):
+            trial = _fit_structure(problem, alternative, zero_band)
+            if _preferred(trial[0], best, omega, (f.min(), f.max()), noise_known):
+                why = ", ".join(_flaws(best, omega, (f.min(), f.max()))) or "a higher information criterion"
+                notes = trial[3] + [f"structure: {alternative.size} of the diagram's {mode_hz.size} mode(s)"
+                                    + (", zeros beyond the band as residual flexibility" if zero_band < 1.5 else "")
+                                    + f", preferred to a fit with {why} (chi2/dof {_cost(trial[0]):.3g} against "
+                                      f"{_cost(best):.3g})"]
+                best, order, rigid_from_hint, mode_hz = trial[0], trial[1], trial[2], alternative
+    dropped += notes
+    solution, layout, sign = best
+    if not rigid_from_hint and layout.n_rigid < n_rigid:
+        dropped.append(f"{n_rigid - layout.n_rigid} of {n_rigid} rigid pole pairs not seen by this channel "
+                       "(cancelled by real zeros)")
+    model = _to_model(solution.x, layout, omega, sign)
+    cost = _cost(best)
+    features = _features(model, solution, layout, omega, cost, (f.min(), f.max()))
+    return ChannelFit(model, features, diagram, order, cost, int(solution.nfev), dropped, np.asarray(mode_hz))
+
+
+def _fit_structure(problem, mode_hz, zero_band=1.5):
+    """Starting fit with the flexible modes ``mode_hz``, then output-error refinement; (best, order, rigid_from_hint, notes).
+
+    ``zero_band``: numerator factors beyond this multiple of the band's top go into the residual flexibility.
+    """
+    f, x, reduced, reduced_sigma, orders, omega, n_rigid, relative_noise, rigid_hint_hz, zero_hint_hz, noise_known, \
+        lowpass, delay, max_iterations = problem
     # starting fit: the lowest order that shows every selected mode
     order, start = orders[-1], None
     for candidate in orders:
@@ -523,9 +569,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
     if start is None:
         start = sanathanan_koerner(f, reduced, order, order, std=reduced_sigma)
     rigid, rigid_from_hint, flexible, factors, residual, notes = _starting_point(
-        start, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz)
-    dropped += notes
-    noise_known = std is not None and np.all(np.asarray(std) > 0)
+        start, x, omega, n_rigid, mode_hz, relative_noise, rigid_hint_hz, zero_band)
     best = _refine(rigid, flexible, factors, residual, x, reduced, reduced_sigma, lowpass, delay, max_iterations)
     missing = n_rigid - len(rigid)
     if missing > 0 and rigid_hint_hz is not None and (not noise_known or not _consistent(best)):
@@ -533,19 +577,77 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
         # with a real zero pair next to it (a neutral start), and keep what the criterion prefers
         hint = sorted(np.asarray(rigid_hint_hz, dtype=float) * 2 * np.pi / omega)
         extra = [a for a in hint if min(abs(a / r - 1) for r in rigid) > 0.05][:missing]
-        if extra:
-            trial = _refine(rigid + extra, flexible, factors + [(0.0, -(0.9 * a) ** 2) for a in extra], residual, x,
-                            reduced, reduced_sigma, lowpass, delay, max_iterations)
+        starts = [(rigid + extra, factors + [(0.0, -(0.9 * a) ** 2) for a in extra])] if extra else []
+        if zero_hint_hz is not None and len(zero_hint_hz):
+            # the nominal channel's low-frequency structure: every rigid pair, its real zero pairs in place of the
+            # linear fit's real factors
+            complex_factors = [factor for factor in factors if factor[0] ** 2 < 4 * factor[1]]
+            starts.append((hint[:n_rigid], complex_factors + [(0.0, -(z * 2 * np.pi / omega) ** 2) for z in zero_hint_hz]))
+        for trial_rigid, trial_factors in starts:
+            trial = _refine(trial_rigid, flexible, trial_factors, residual, x, reduced, reduced_sigma, lowpass, delay,
+                            max_iterations)
             if _criterion(trial, noise_known) < _criterion(best, noise_known):
                 best = trial
-    solution, layout, sign = best
-    if not rigid_from_hint and layout.n_rigid < n_rigid:
-        dropped.append(f"{n_rigid - layout.n_rigid} of {n_rigid} rigid pole pairs not seen by this channel "
-                       "(cancelled by real zeros)")
-    model = _to_model(solution.x, layout, omega, sign)
-    cost = _cost(best)
-    features = _features(model, solution, layout, omega, cost, (f.min(), f.max()))
-    return ChannelFit(model, features, diagram, order, cost, int(solution.nfev), dropped, np.asarray(mode_hz))
+    return best, order, rigid_from_hint, notes
+
+
+#: A fitted "resonance" damped more than this is no lightly damped mode (the model update's own limit): a pole
+#: pair the fit needed elsewhere.
+OVERDAMPED = LIGHT_DAMPING
+
+
+#: A resonance whose pole an anti-resonance of the same channel cancels to within this (largest relative change of
+#: |G| anywhere in the band) is a pole-zero dipole: it bends the response by a few percent, it is no mode.
+DIPOLE = 0.05
+
+
+def dipole_hz(model, band_hz):
+    """Frequencies [Hz] of the flexible poles of ``model`` that a complex zero nearly cancels (`DIPOLE`), and of those zeros."""
+    poles = model.mode_rad_s * (-model.mode_damping + 1j * np.sqrt(np.maximum(1 - model.mode_damping**2, 0.0)))
+    zeros = [np.roots([1.0, c1, c0])[0] for c1, c0 in model.zero_factors if c1**2 < 4 * c0]
+    found = []
+    for pole in poles:
+        for zero in zeros:
+            zero = zero if zero.imag > 0 else np.conj(zero)
+            # the pair changes |G| most near its own frequency: the band's grid and the pair's frequencies
+            s = 1j * np.concatenate([2 * np.pi * np.linspace(band_hz[0], band_hz[1], 400),
+                                     [pole.imag, zero.imag, abs(pole), abs(zero)]])
+            change = (s - zero) * (s - np.conj(zero)) / ((s - pole) * (s - np.conj(pole))) - 1
+            if np.max(np.abs(change)) < DIPOLE:
+                found.append((abs(pole) / (2 * np.pi), abs(zero) / (2 * np.pi)))
+    return found
+
+
+def _flaws(result, omega, band_hz):
+    """What makes a refinement physically implausible: a negative delay, overdamped resonances, pole-zero dipoles."""
+    model = _to_model(result[0].x, result[1], omega, result[2])
+    flaws = []
+    if model.delay_s < 0:
+        flaws.append("negative delay")
+    in_band = (model.mode_rad_s >= 2 * np.pi * band_hz[0]) & (model.mode_rad_s <= 2 * np.pi * band_hz[1])
+    if np.any(in_band & (model.mode_damping > OVERDAMPED)):
+        flaws.append("overdamped resonance")
+    flaws += ["pole-zero dipole"] * len(dipole_hz(model, band_hz))
+    return flaws
+
+
+def _acceptable(result, omega, band_hz):
+    return _consistent(result) and not _flaws(result, omega, band_hz)
+
+
+def _preferred(trial, best, omega, band_hz, noise_known):
+    """Whether ``trial`` beats ``best``: fewer physical flaws first, then the information criterion."""
+    rank = lambda r: (len(_flaws(r, omega, band_hz)), _criterion(r, noise_known))  # noqa: E731
+    return rank(trial) < rank(best)
+
+
+def _alternative_structures(diagram, mode_hz):
+    """Other structures to try: the zeros beyond the band as residual flexibility, fewer modes (most persistent)."""
+    out = [(mode_hz, 1.0)]
+    for count in range(mode_hz.size - 1, 0, -1):
+        subset = _most_persistent(diagram, mode_hz, count)
+        out += [(subset, 1.5), (subset, 1.0)]
+    return out
 
 
 def _refine(rigid, flexible, factors, residual, x, data, sigma, lowpass, delay, max_iterations):
@@ -654,6 +756,28 @@ def _features(model, solution, layout, omega, cost, band_hz):
 CHANNEL_SETS = ("diagonal", "same_plane", "all")
 
 
+def fit_orders(orders=None, n_rigid=RIGID_MODES):
+    """Denominator orders of the stabilization diagram: ``orders``, or ``2 n_rigid + 2, ..., 2 n_rigid + 12``."""
+    base = 2 * n_rigid
+    return list(range(base + 2, base + 13, 2)) if orders is None else list(orders)
+
+
+def max_fit_modes(settings):
+    """Most flexible modes the ``fit:`` settings can give a channel (the modes they fix, or half the highest order).
+
+    Raises
+    ------
+    ConfigError
+        ``fit.modes`` more than the stabilization diagram's highest order can hold, before any data is read.
+    """
+    highest = max(fit_orders(settings.get("orders")))
+    modes = settings.get("modes")
+    if modes is not None and modes > highest // 2:
+        raise ConfigError("fit.modes", f"{modes} flexible modes need a denominator order >= {2 * modes}; the stabilization "
+                                       f"diagram's highest order is {highest} (fit.orders), {highest // 2} modes at most")
+    return highest // 2 if modes is None else modes
+
+
 def select_channels(kind, axes=RADIAL_AXES):
     """Radial channels ``(output, input)`` to fit.
 
@@ -668,16 +792,77 @@ def select_channels(kind, axes=RADIAL_AXES):
             if kind == "all" or (kind == "same_plane" and plane[o] == plane[i]) or o == i]
 
 
-def feature_rows(channel_fit, output_axis, input_axis, estimator):
-    """The features of one fitted channel as table rows (resonances, anti-resonances, rigid poles, delay)."""
+#: Default of ``fit.max_chi2``: chi-square per degree of freedom (against the noise, or the scatter a
+#: high-order rational fit leaves where that is larger) above which a channel's fit has failed.
+MAX_CHI2 = 300.0
+
+
+def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_CHI2):
+    """What is wrong with a fitted channel, as a flag for its features and findings for the user.
+
+    Returns
+    -------
+    flag : str
+        ``fit_failed`` (chi2/dof above ``max_chi2``), ``negative_delay`` (a non-causal fit: its
+        structure compensates something it lacks) or ``""``.  Features of a flagged channel are
+        not used by the model update.
+    findings : list of ambid.findings.Finding
+        One per flag, and one per in-band "resonance" damped more than `OVERDAMPED` (no mode: a
+        pole pair the fit needed elsewhere; flagged ``overdamped`` by `feature_rows`).
+    """
+    model = channel_fit.model
+    fitted = model.frequency_response(frequency_hz, known)
+    misfit = float(np.sqrt(np.mean(np.abs(fitted / response - 1) ** 2)))
+    findings, flag = [], ""
+    if not channel_fit.cost <= max_chi2:
+        flag = "fit_failed"
+        findings.append(Finding("fit", "failure", "fit_failed", label,
+                                f"chi2/dof {channel_fit.cost:.6g} above fit.max_chi2 {max_chi2:g} (rms relative misfit "
+                                f"{100 * misfit:.3g} %): the fitted model does not follow the data; its resonances and "
+                                "anti-resonances are not used by the model update", channel_fit.cost))
+    elif model.delay_s < 0:
+        flag = "negative_delay"
+        findings.append(Finding("fit", "warning", "negative_delay", label,
+                                f"fitted delay {1e6 * model.delay_s:.4g} us < 0: a non-causal fit, its structure compensates "
+                                "something it lacks; its features are not used by the model update", model.delay_s))
+    for row in channel_fit.features:
+        if row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED:
+            findings.append(Finding("fit", "warning", "overdamped", label,
+                                    f"a fitted pole pair at {row['frequency_hz']:.4g} Hz with damping ratio "
+                                    f"{row['damping_ratio']:.3g} > {OVERDAMPED}: no lightly damped mode; not used by the "
+                                    "model update", row["damping_ratio"]))
+    for pole_hz, zero_hz in dipole_hz(model, (np.min(frequency_hz), np.max(frequency_hz))):
+        findings.append(Finding("fit", "warning", "dipole", label,
+                                f"the pole pair at {pole_hz:.4g} Hz and the zero pair at {zero_hz:.4g} Hz nearly cancel "
+                                f"(|G| changes by less than {100 * DIPOLE:g} % anywhere in the band): a bend of the response, "
+                                "no mode; not used by the model update", pole_hz))
+    return flag, findings
+
+
+def feature_rows(channel_fit, output_axis, input_axis, estimator, flag="", band_hz=None):
+    """The features of one fitted channel as table rows (resonances, anti-resonances, rigid poles, delay).
+
+    ``flag`` (`fit_verdict`) marks every row; a resonance damped more than `OVERDAMPED` is ``overdamped``, the
+    pole and zero of a pole-zero dipole (`dipole_hz` in ``band_hz``, default: the span of the in-band features)
+    are ``dipole``.
+    """
+    if band_hz is None:
+        in_band = [r["frequency_hz"] for r in channel_fit.features if r["kind"] in ("resonance", "anti_resonance")]
+        band_hz = (min(in_band, default=0.0), max(in_band, default=0.0))
+    dipoles = [f for pair in dipole_hz(channel_fit.model, band_hz) for f in pair]
     rows = []
     for row in channel_fit.features:
         if row["kind"] in ("stable_rigid",):
             continue
+        if any(abs(row["frequency_hz"] / f - 1) < 1e-9 for f in dipoles) and row["kind"] in ("resonance", "anti_resonance"):
+            overdamped = "dipole"
+        else:
+            overdamped = "overdamped" if row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED else ""
         rows.append({"output": output_axis, "input": input_axis, "estimator": estimator, "root": row["root"],
                      "kind": row["kind"], "number": row["number"], "frequency_hz": row["frequency_hz"],
                      "damping_ratio": row["damping_ratio"], "frequency_std_hz": row.get("frequency_std_hz", np.nan),
-                     "damping_std": row.get("damping_std", np.nan), "modal_constant": row.get("modal_constant", np.nan)})
+                     "damping_std": row.get("damping_std", np.nan), "modal_constant": row.get("modal_constant", np.nan),
+                     "flag": flag or overdamped})
     return rows
 
 

@@ -30,7 +30,9 @@ model as it is exceeds `INDISTINGUISHABLE_BIC` (Kass & Raftery's "very strong"),
 (2) it removes at least ``min_share`` (10 %) of the excess in the cells above the
 floor, and (3) none of its parameters ends at a search bound (an effect that
 wants more than its physical range allows explains something else).  Candidates
-whose evidence differs by less than `INDISTINGUISHABLE_BIC` are named as
+whose evidence differs by less than `INDISTINGUISHABLE_BIC`, or which both
+bring every cell to the floor (the data, at their floor, cannot tell them
+apart: a 10 us delay and a 15 kHz sensor pole below 1 kHz), are named as
 indistinguishable.
 
 **Selection and joint refit.**  Missing effects are chosen one after the other
@@ -428,29 +430,47 @@ def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2, warm=None)
             best = (fine.x, chi2, fine.jac)
     x, chi2, jacobian = best
     values = tuple(p.from_search(v) for p, v in zip(free, x))
-    std = _standard_deviations(free, x, jacobian, chi2, points)
-    at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
     residual = evaluator.residual(effects(x))
+    std = _standard_deviations(free, x, jacobian, chi2, points, residual)
+    at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
     return FittedCandidate(candidate, values, std, chi2, residual=residual, at_bound=at_bound,
                            evaluations=evaluator.evaluations - count)
 
 
-def _covariance(jacobian, chi2, points, k, prior=None):
+def correlation_time(residual):
+    """Integrated correlation time ``(1 + rho) / (1 - rho)`` of a residual along frequency (1 for white noise).
+
+    ``rho = Re sum r_k conj(r_(k+1)) / sum |r_k|^2`` is its lag-one correlation
+    (an AR(1) model; clipped to [0, 0.96], so at most 49): what the floor leaves
+    is partly systematic, smooth in frequency, so neighbouring points carry less
+    than independent information.
+    """
+    r = np.asarray(residual, dtype=complex).ravel()
+    power = float(np.vdot(r, r).real)
+    if r.size < 3 or power == 0:
+        return 1.0
+    rho = float(np.clip(np.vdot(r[:-1], r[1:]).real / power, 0.0, 0.96))
+    return (1 + rho) / (1 - rho)
+
+
+def _covariance(jacobian, chi2, points, k, prior=None, residual=None):
     """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
 
     Each real component of the residual has variance 1/2 at the floor; the
     data's information is deflated by the misfit left, ``c = max(1, chi2 /
-    (N - k))``; ``prior`` is the diagonal precision a prior adds (in the
+    (N - k))``, times the residual's `correlation_time` along frequency (given
+    ``residual``); ``prior`` is the diagonal precision a prior adds (in the
     residual's units, not deflated).
     """
-    information = jacobian.T @ jacobian / max(1.0, chi2 / max(points - k, 1))
+    deflation = max(1.0, chi2 / max(points - k, 1)) * (1.0 if residual is None else correlation_time(residual))
+    information = jacobian.T @ jacobian / deflation
     if prior is not None:
         information = information + np.diag(prior)
     return 0.5 * np.linalg.pinv(information)
 
 
-def _standard_deviations(free, x, jacobian, chi2, points):
-    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free))
+def _standard_deviations(free, x, jacobian, chi2, points, residual=None):
+    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free), residual=residual)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     return tuple(float(s * p.from_search(v)) if p.log else float(s) for p, s, v in zip(free, std_search, x))
 
@@ -471,10 +491,12 @@ def _rank(fitted, chi2, residual, evaluator, settings):
         f.share = (1.0 - cells.excess(f.residual, above) / excess) if excess > 0 else 0.0
         f.missing = bool(f.significant and above.any() and f.share >= settings.min_share and not f.at_bound)
     fitted.sort(key=lambda f: (not f.missing, -f.evidence))
+    at_floor = {id(f): not cells.above(cells.chi2(f.residual), settings.floor_limit).any() for f in fitted}
     for f in fitted:
         if f.missing:
             f.indistinguishable = tuple(g.candidate.label for g in fitted if g is not f and g.missing
-                                        and abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC)
+                                        and (abs(g.evidence - f.evidence) < INDISTINGUISHABLE_BIC
+                                             or (at_floor[id(f)] and at_floor[id(g)])))
     return overdispersion
 
 
@@ -624,7 +646,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     fitted = evaluator.residual(effects)
     chi2 = float(np.vdot(fitted, fitted).real)
     covariance = _covariance(solution.jac[: 2 * points], chi2, points, len(parameters),
-                             prior=np.where(prior, 2 * prior_scale**2, 0.0))
+                             prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
@@ -762,11 +784,12 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
                           base_chi2=float(np.vdot(current, current).real), cells_before=cells_before)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
     # before, and the next candidates fitted on top of that joint model
-    # (candidates that could not pay for their parameters on the model as it is are not tried again; the others
+    # (candidates that could not pay for their parameters on the model as it is, from an optimum inside their range, are
+    # not tried again; one that ended at a bound may be masked by a larger misfit and is searched afresh; the others
     # start from where they ended)
     chosen, ranking, joint = [], fitted, (retuned if base is not machine else None)
-    useful = {f.candidate.label for f in fitted if f.evidence > 0}
-    latest = {f.candidate.label: f.values for f in fitted}
+    useful = {f.candidate.label for f in fitted if f.evidence > 0 or f.at_bound}
+    latest = {f.candidate.label: f.values for f in fitted if not f.at_bound}
     while ranking and ranking[0].missing and len(chosen) < settings.sequence_length:
         chosen.append(ranking[0])
         joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint)
@@ -775,9 +798,9 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
         if not remaining or at_floor or len(chosen) >= settings.sequence_length:
             break
         evaluator = _Evaluator(Plant(joint.machine), measured, cells)
-        ranking = [_fit(evaluator, c, (), settings.max_evaluations, warm=latest[c.label]) for c in remaining]
+        ranking = [_fit(evaluator, c, (), settings.max_evaluations, warm=latest.get(c.label)) for c in remaining]
         _rank(ranking, joint.chi2, joint.residual, evaluator, settings)
-        latest.update({f.candidate.label: f.values for f in ranking})
+        latest.update({f.candidate.label: f.values for f in ranking if not f.at_bound})
     diagnosis.sequence = chosen
     diagnosis.joint = joint
     after = joint.residual if joint is not None else residual

@@ -54,7 +54,7 @@ from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
-           "amplitude_coefficients", "local_coefficient", "smooth_fit_ratio", "systematic_floor"]
+           "amplitude_coefficients", "local_coefficient", "peak_coefficient", "smooth_fit_ratio", "systematic_floor"]
 
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
@@ -251,6 +251,26 @@ def local_coefficient(frequency_hz, estimates, neighbours=3):
     return out
 
 
+def peak_coefficient(frequency_hz, estimates, nearest=2, significance=2.0):
+    """``|kappa|`` at each frequency from the ``nearest`` pairs alone, where they are significant.
+
+    Near a lightly damped resonance the amplitude-dependent error changes within
+    a few steps (the response there is most sensitive to the force law), which
+    the smooth `local_coefficient` averages away: the largest of the nearest
+    pairs' own estimates, debiased by ``significance^2`` times their variance
+    (0 unless a pair departs by more than ``significance`` sigma).
+    """
+    f, kappa, variance = estimates
+    out = np.zeros(len(frequency_hz))
+    if f.size == 0:
+        return out
+    own = np.sqrt(np.clip(np.abs(kappa) ** 2 - significance**2 * variance, 0.0, None))
+    count = min(nearest, f.size)
+    for k, frequency in enumerate(np.asarray(frequency_hz, dtype=float)):
+        out[k] = own[np.argsort(np.abs(np.log(f / frequency)))[:count]].max()
+    return out
+
+
 def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
     """Residual of a local polynomial fit against its noise: ``|e_k|^2 / (std_k^2 (1 - h_kk))`` per point.
 
@@ -331,7 +351,8 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
     Notes
     -----
     ``two_level`` rows get ``|kappa(f)| |U2|^2 |G|`` with ``kappa`` of their channel
-    (`local_coefficient` of `amplitude_coefficients`; a MIMO element takes its SISO
+    (`local_coefficient` of `amplitude_coefficients`, or `peak_coefficient` where
+    larger: a resonance's own pairs; a MIMO element takes its SISO
     twin's); a channel with fewer than ``min_pairs`` pairs falls back per band to
     ``smooth_fit`` or the constant.
     """
@@ -351,7 +372,7 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
         family = family_of(estimator, output, input_axis)
         estimates = coefficients.get((family, f"I_{output}" if family == "currents" else output, input_axis))
         if estimates is not None and estimates[0].size >= settings.min_pairs:
-            kappa = local_coefficient(frequency, estimates)
+            kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
             systematic[order] = kappa * excitation[order] * magnitude[order]
             pairs[order] = estimates[0].size
 

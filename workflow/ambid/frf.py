@@ -171,21 +171,33 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan)
 
 
-def frf_from_log(frame, floor_settings=None, source="identification log"):
+def frf_from_log(frame, floor_settings=None, source="identification log", estimator="mimo"):
     """Every FRF of an identification log with its noise and its systematic floor (what the ``frf`` rule writes).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        A validated identification log.
+    floor_settings : ambid.floor.FloorSettings, optional
+    source : str
+        The log, named in errors.
+    estimator : {"mimo", "siso"}
+        ``siso`` leaves the MIMO estimate out (config ``frf.estimator``).
 
     Returns
     -------
     table : pandas.DataFrame
         `frf_table` of the log's level-0 steps: SISO, MIMO (when all four radial
-        axes were excited) and coil currents, ``systematic_std`` from `ambid.floor`.
+        axes were excited and ``estimator`` is mimo) and coil currents,
+        ``systematic_std`` from `ambid.floor`.
     floors : pandas.DataFrame
         `ambid.floor.systematic_floor`'s account of how, per family and band.
     mimo : tuple or None
         `mimo_etfe`'s output (its condition numbers).
     """
     arrays = log_arrays(frame)
-    mimo = mimo_etfe(arrays, source=source) if all(a in arrays for a in RADIAL_AXES) else None
+    mimo = (mimo_etfe(arrays, source=source) if estimator == "mimo" and all(a in arrays for a in RADIAL_AXES)
+            else None)
     table = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
     table, floors = systematic_floor(table, arrays, frame, floor_settings or FloorSettings())
     return table, floors, mimo

@@ -9,6 +9,7 @@ never leaves a half-written result.
 """
 
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -29,10 +30,12 @@ __all__ = [
     "SCHEMA_VERSION",
     "rule_log",
     "atomic_path",
+    "file_digest",
     "write_parquet",
     "read_parquet",
     "write_tsv",
     "read_tsv",
+    "load_yaml",
     "read_yaml",
     "write_yaml",
     "frf_frame",
@@ -60,20 +63,87 @@ def atomic_path(path):
             os.remove(temporary)
 
 
+def file_digest(path):
+    """SHA-256 of a file's content (16 hex digits), or ``"missing"``.
+
+    What the workflow tracks a user's file by (a rule param: Snakemake reruns what depends on it when the
+    content changes, whatever its modification time), and what a converted log records of its source.
+    """
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as handle:
+            while block := handle.read(2**20):
+                digest.update(block)
+    except OSError:
+        return "missing"
+    return digest.hexdigest()[:16]
+
+
 def read_tsv(path):
     """A table written by `write_tsv`."""
     return pd.read_csv(path, sep="\t")
 
 
-def read_yaml(path):
-    """A YAML mapping from ``path``; `ConfigError` naming the file when it cannot be read or is not a mapping."""
+def _duplicate_keys(node, path=""):
+    """The first key assigned twice in a composed YAML node tree: (dotted key, first line, second line) or None."""
+    if isinstance(node, yaml.MappingNode):
+        seen = {}
+        for key_node, value_node in node.value:
+            key = str(key_node.value)
+            where = f"{path}.{key}" if path else key
+            if key in seen:
+                return where, seen[key] + 1, key_node.start_mark.line + 1
+            seen[key] = key_node.start_mark.line
+            found = _duplicate_keys(value_node, where)
+            if found:
+                return found
+    elif isinstance(node, yaml.SequenceNode):
+        for k, item in enumerate(node.value):
+            found = _duplicate_keys(item, f"{path}[{k}]")
+            if found:
+                return found
+    return None
+
+
+def load_yaml(text, source):
+    """A YAML document's content, refusing duplicate keys (YAML would silently keep the last value).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``source``, the duplicated key's dotted path and both lines; or the syntax error.
+    """
     try:
-        with open(path) as handle:
-            content = yaml.safe_load(handle)
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError("", f"cannot read {path}: {error}", source=str(path)) from None
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        duplicate = _duplicate_keys(node)
+        if duplicate:
+            key, first, second = duplicate
+            raise ConfigError(key, f"duplicate key (lines {first} and {second}): YAML would keep only the last value",
+                              source=str(source))
+        return yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ConfigError("(file)", f"not valid YAML{where}: {problem}", source=str(source)) from None
+
+
+def read_yaml(path, key="(file)"):
+    """A YAML mapping from ``path`` (duplicate keys refused, `load_yaml`).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file (and ``key``, the config key that points to it) when it cannot be read, is not
+        valid YAML, repeats a key or is not a mapping.
+    """
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(key, f"cannot read {path}: {error}") from None
+    content = load_yaml(text, path)
     if not isinstance(content, dict):
-        raise ConfigError("", "does not hold a mapping", source=str(path))
+        raise ConfigError(key, f"{path} does not hold a mapping")
     return content
 
 

@@ -259,6 +259,7 @@ def read_identification_log(path):
         If its content breaks the contract.
     """
     frame, info = read_parquet(path, kind=KIND)
+    frame = _plain_columns(frame)
     validate_identification_log(frame, str(path))
     if "level" not in frame.columns:
         frame = frame.assign(level=np.zeros(len(frame), dtype=np.int64))
@@ -297,6 +298,14 @@ def _check_row(frame, mask, source, what, per_channel=False):
         first = int(np.flatnonzero(mask)[0])
         note = f" (first: channel {frame['channel'].iat[first]})" if per_channel else ""
         raise LogError(source, f"{_where(frame, mask)}: {what}{note}")
+
+
+def _plain_columns(frame):
+    """Categorical columns (pandas' or Parquet's dictionary encoding of a log from another writer) as their values."""
+    categorical = [name for name in frame.columns if isinstance(frame[name].dtype, pd.CategoricalDtype)]
+    if not categorical:
+        return frame
+    return frame.assign(**{name: frame[name].astype(frame[name].cat.categories.dtype) for name in categorical})
 
 
 def _check_columns(frame, source, columns=COLUMNS, what="an identification log"):
@@ -375,6 +384,7 @@ def validate_identification_log(frame, source):
         With a ``level`` column: ``level < 0``, or a repeated step (level > 0)
         without its level-0 step at the same frequency.
     """
+    frame = _plain_columns(frame)
     _check_columns(frame, source)
     frame = frame.reset_index(drop=True)
     if "level" not in frame.columns:

@@ -10,17 +10,22 @@ inside it; with our PID ``C_pid`` (error -> current) that is ``C = -C_pid``::
     open loop (Nyquist)    V1 -> V2   P C
 
 Stability is judged two ways: the eigenvalues of the sampled-data closed loop
-(`ambid.plant.Plant.closed_loop_poles`) and the peak of the sensitivity
-function per axis, graded by the zones of ISO 14839-3 (A < 9.5 dB, B < 12 dB,
-C < 14 dB, D above).
+with every effect of the model (`ambid.plant.Plant.closed_loop_poles`, the loop
+the virtual rig simulates: delays, low-passes, eddy-current lag,
+cross-coupling) and the peak of the sensitivity function per axis, graded by
+the zones of ISO 14839-3 (A < 9.5 dB, B < 12 dB, C < 14 dB, D above).  A
+sensitivity peak grades a stable loop only: an unstable loop is "unstable"
+and has no zone.
 """
 
 import numpy as np
 
+from .errors import ModelError
 from .machine import AXIAL_AXIS, RADIAL_AXES
 from .plant import damping_ratio
 
-__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone", "zero_order_hold"]
+__all__ = ["transfer_functions", "axial_transfer_functions", "stability_summary", "iso_zone", "zero_order_hold",
+           "check_stable"]
 
 ISO_14839_ZONES = ((3.0, "A"), (4.0, "B"), (5.0, "C"))
 
@@ -100,17 +105,19 @@ def stability_summary(plant, frequency_hz=None):
         Where to search the sensitivity peak; default 1 Hz to the Nyquist
         frequency of the controller, 4000 log-spaced points.
 
-    The sensitivity includes the zero-order hold of the sampled loop and every
-    effect of the model (delays, low-passes); the eigenvalue check includes the
-    hold but not the non-structural effects.
+    The sensitivity and the eigenvalue check both include the zero-order hold of
+    the sampled loop and every effect of the model (delays, low-passes, the
+    eddy-current lag, cross-coupling).
 
     Returns
     -------
     list of dict
         One row per axis: ``axis``, ``spectral_radius`` of the sampled-data closed
-        loop (< 1 is stable), ``stable``, ``min_damping_ratio`` of its oscillatory
-        poles (the loop's weakest mode; radial axes share one loop),
-        ``sensitivity_peak_db``, ``sensitivity_peak_hz``, ``iso_14839_zone``.
+        loop (< 1 is stable), ``stable``, ``verdict`` ("stable" / "unstable"),
+        ``min_damping_ratio`` of its oscillatory poles (the loop's weakest mode;
+        radial axes share one loop), ``sensitivity_peak_db``,
+        ``sensitivity_peak_hz``, ``iso_14839_zone`` (empty for an unstable loop:
+        the sensitivity of a loop that diverges grades nothing).
     """
     machine = plant.machine
     radial_loop = plant.closed_loop_poles()
@@ -118,7 +125,7 @@ def stability_summary(plant, frequency_hz=None):
         nyquist = 0.5 / machine.sample_time_s
         frequency_hz = np.logspace(0, np.log10(0.999 * nyquist), 4000)
         # lightly damped closed-loop modes have peaks narrower than any grid: look at them too
-        poles = radial_loop.s_poles
+        poles = radial_loop.s_poles[np.isfinite(radial_loop.s_poles)]
         damped = np.abs(poles.imag[(poles.imag > 0) & (damping_ratio(poles) < 0.2)]) / (2 * np.pi)
         frequency_hz = np.unique(np.concatenate([frequency_hz, damped[damped < nyquist]]))
     rows = []
@@ -131,17 +138,39 @@ def stability_summary(plant, frequency_hz=None):
     return rows
 
 
+def check_stable(plant, what):
+    """Raise `ModelError` when the sampled-data closed loop of ``plant`` (radial, and Z) is unstable.
+
+    A machine that levitates while it is measured cannot have a model whose loop diverges: such a model
+    variant has no ISO 14839-3 zone and nothing downstream of it (plant FRF, comparison, diagnosis) is
+    meaningful.  ``what`` names the model in the message (its machine file and variant).
+    """
+    loops = [("DX, DY, NX, NY", plant.closed_loop_poles())]
+    if plant.machine.axial_electromagnet is not None:
+        loops.append(("Z", plant.axial_closed_loop_poles()))
+    unstable = [(axes, loop.spectral_radius) for axes, loop in loops if loop.spectral_radius >= 1.0]
+    if unstable:
+        radii = ", ".join(f"{radius:.6f} on {axes}" for axes, radius in unstable)
+        raise ModelError(f"{what} is unstable in closed loop (spectral radius {radii}: the sampled loop with every effect "
+                         "of the model, delays and low-passes included), so it has no ISO 14839-3 zone and describes no "
+                         "levitating machine; check the controller gains and filters of the machine file and the delays, "
+                         "low-passes and eddy-current effects the variant adds")
+
+
 def _row(axis, closed_loop, sensitivity, frequency_hz):
     peak = int(np.argmax(sensitivity))
-    spectral_radius = np.max(np.abs(closed_loop.z_poles))
+    spectral_radius = closed_loop.spectral_radius
     s = closed_loop.s_poles
+    s = s[np.isfinite(s)]  # the delay buffer's poles at z = 0
     oscillatory = s[np.abs(s.imag) > 1e-9 * np.maximum(np.abs(s), 1.0)]
+    stable = bool(spectral_radius < 1.0)
     return {
         "axis": axis,
         "spectral_radius": float(spectral_radius),
-        "stable": bool(spectral_radius < 1.0),
+        "stable": stable,
+        "verdict": "stable" if stable else "unstable",
         "min_damping_ratio": float(np.min(damping_ratio(oscillatory))) if oscillatory.size else 1.0,
         "sensitivity_peak_db": float(20 * np.log10(sensitivity[peak])),
         "sensitivity_peak_hz": float(frequency_hz[peak]),
-        "iso_14839_zone": iso_zone(sensitivity[peak]),
+        "iso_14839_zone": iso_zone(sensitivity[peak]) if stable else "",
     }

@@ -18,7 +18,7 @@ identification log.
 """
 
 import math
-from pathlib import Path
+import os
 from string import ascii_letters
 from typing import NamedTuple
 
@@ -569,10 +569,38 @@ def parse_thesis_m(text, path="<string>"):
     return {name: matrix.values for name, matrix in _parse(text, str(path)).items()}
 
 
+#: Longest line accepted [bytes]: a thesis row of 22 complex columns at 17 digits is about 1,100 characters.
+MAX_LINE_BYTES = 65536
+#: Largest file accepted [bytes] (about 200,000 steps of the thesis layout).
+MAX_FILE_BYTES = 256 * 2**20
+
+
 def _read_text(path):
-    """UTF-8 text of ``path`` (a leading byte-order mark is dropped)."""
+    """UTF-8 text of ``path`` (a leading byte-order mark is dropped), refusing oversized files and lines.
+
+    The size is checked before reading and each line's length while reading in chunks, so an
+    oversized file is refused after reading at most `MAX_LINE_BYTES` past its last line end.
+    """
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as handle:
+            size = os.fstat(handle.fileno()).st_size
+            if size > MAX_FILE_BYTES:
+                raise LogError(str(path), f"{size} bytes: larger than the {MAX_FILE_BYTES} a thesis .m log may have")
+            chunks, line, length = [], 1, 0  # length: bytes of the current line read so far
+            while chunk := handle.read(MAX_LINE_BYTES):
+                chunks.append(chunk)
+                start = 0
+                while True:
+                    end = chunk.find(b"\n", start)
+                    length += (end if end >= 0 else len(chunk)) - start
+                    if length > MAX_LINE_BYTES:
+                        raise MFileParseError(str(path), line, MAX_LINE_BYTES + 1,
+                                              f"line longer than {MAX_LINE_BYTES} bytes: a thesis .m log holds one "
+                                              "frequency step per line (rows end with ';' or a line break)")
+                    if end < 0:
+                        break
+                    line, length, start = line + 1, 0, end + 1
+            data = b"".join(chunks)
     except OSError as error:
         raise LogError(str(path), f"cannot read the file ({error.strerror or error})") from None
     try:
@@ -720,6 +748,10 @@ def read_thesis_m(path, notes=None):
     absent.  An empty matrix ``[]`` means no steps for that axis.  A full-width
     matrix whose other bearing's columns are exactly 0 on every step was padded:
     those channels are left out (a line in ``notes``, when a list is given).
+    ``frame.attrs["source_lines"]`` holds, per excited axis of a full-width
+    (`THESIS_COLUMNS`) matrix, the line of each step (a list of each element's
+    line for a row continued over lines), so that later checks can name the
+    line and column of a value.
     """
     path = str(path)
     matrices = _parse(_read_text(path), path)
@@ -727,5 +759,12 @@ def read_thesis_m(path, notes=None):
     def position(matrix):
         return lambda row, column: matrix.positions[row][column]
 
-    return thesis_log({name: m.values for name, m in matrices.items()}, path,
-                      {name: position(m) for name, m in matrices.items()}, notes)
+    frame = thesis_log({name: m.values for name, m in matrices.items()}, path,
+                       {name: position(m) for name, m in matrices.items()}, notes)
+    frame.attrs["source_lines"] = {
+        _VARIABLES[name]: [row[0][0] if len({line for line, _ in row}) == 1 else [line for line, _ in row]
+                           for row in matrix.positions]
+        for name, matrix in matrices.items()
+        if matrix.values.ndim == 2 and matrix.values.shape[1] == len(THESIS_COLUMNS) and matrix.values.shape[0] > 0
+    }
+    return frame

@@ -47,7 +47,9 @@ def mode_table(plant, max_frequency_hz=None):
     poles, vectors = plant.poles()
     rows = _rows("open_loop", plant, poles, vectors, np.ones(poles.size), max_frequency_hz)
     closed = plant.closed_loop_poles()
-    rows += _rows("closed_loop", plant, closed.s_poles, closed.vectors, closed.plant_participation, max_frequency_hz)
+    finite = np.isfinite(closed.s_poles)  # the delay buffer's poles at z = 0 have no frequency
+    rows += _rows("closed_loop", plant, closed.s_poles[finite], closed.vectors[:, finite], closed.plant_participation[finite],
+                  max_frequency_hz)
     rows.sort(key=lambda r: (r["system"] != "open_loop", r["frequency_hz"], r["real_part_1_per_s"]))
     return rows
 

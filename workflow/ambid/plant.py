@@ -17,7 +17,6 @@ The axial axis Z is a rigid body on its own bearing.
 import copy
 from dataclasses import dataclass, replace
 from functools import cached_property
-from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -26,6 +25,7 @@ import scipy.signal
 from .effects import split_effects
 from .errors import ModelError
 from .machine import AXIAL_AXIS, AXIS_LOCATION, BEARINGS, RADIAL_AXES
+from .sampled_loop import closed_loop, sampled_system, zoh_discretize  # zoh_discretize: re-exported
 
 __all__ = ["Plant", "damping_ratio", "zoh_discretize", "RIGID_MODES"]
 
@@ -37,15 +37,6 @@ def damping_ratio(poles):
     poles = np.asarray(poles)
     magnitude = np.abs(poles)
     return np.where(magnitude > 0, -poles.real / np.where(magnitude > 0, magnitude, 1.0), 0.0)
-
-
-def zoh_discretize(a, b, time_s):
-    """Exact zero-order-hold discretization ``(Phi, Gamma)`` of ``x' = A x + B u`` over ``time_s``."""
-    n, m = b.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = a, b
-    transition = scipy.linalg.expm(augmented * time_s)
-    return transition[:n, :n], transition[:n, n:]
 
 
 @dataclass(frozen=True)
@@ -391,28 +382,44 @@ class Plant:
         return kind, whirl
 
     # ---------------------------------------------------------- closed loop
-    def closed_loop_poles(self):
-        """Poles of the sampled-data closed loop (ZOH plant + digital controllers).
+    def sampled_loop(self, axial=False):
+        """The sampled-data loop plant of the radial axes (or of Z) with every effect of the model.
 
-        The structural plant (rational effects excluded: a delay or eddy lag is
-        not part of this check) is discretized exactly with a zero-order hold at
-        the controller cycle and closed with the four radial controllers (one per axis).
+        `ambid.sampled_loop.sampled_system` of the structure, linearized at the machine's operating
+        point, with the amplifier and eddy-current lags, cross-coupling, sensor low-passes and
+        whole plus fractional sample delays: the system the virtual rig simulates.
+        """
+        machine = self.machine
+        if axial:
+            ki, kx = self.axial_stiffness
+            return sampled_system(np.array([[self.rotor.mass_kg]]), np.zeros((1, 1)), np.zeros((1, 1)), np.ones((1, 1)),
+                                  np.ones((1, 1)), [ki], [kx], machine.effects, [AXIAL_AXIS], machine.sample_time_s)
+        radial = self.radial
+        return sampled_system(radial.mass, radial.damping + radial.speed_rad_s * radial.gyroscopic, self.free_stiffness,
+                              self.actuator_shape, radial.output_matrix, self.current_stiffness, self.position_stiffness,
+                              machine.effects, RADIAL_AXES, machine.sample_time_s)
+
+    def closed_loop_poles(self):
+        """Poles of the sampled-data closed loop of the radial axes with every effect of the model.
+
+        The structural plant with the model's input- and output-side effects (amplifier
+        and eddy-current lags, cross-coupling, sensor low-passes, whole and fractional
+        sample delays) is discretized exactly with a zero-order hold at the controller
+        cycle and closed with the four radial controllers (`ambid.sampled_loop`).
 
         Returns
         -------
-        ClosedLoop
+        ambid.sampled_loop.ClosedLoop
             ``s_poles`` = log(z) / T [rad/s], ``z_poles`` (stable when all |z| < 1),
-            ``vectors`` (right eigenvectors, plant states first) and
+            ``vectors`` (right eigenvectors, structural states q, q' first) and
             ``plant_participation``: the share of each mode carried by the
-            plant states, from the participation factors |w_ik v_ik| (invariant
-            to how the controller states are scaled).
+            structural states, from the participation factors |w_ik v_ik|.
         """
-        a, b, c = self.radial.state_space()
-        return _sampled_closed_loop(a, b, c, list(self.machine.radial_controllers))
+        return closed_loop(self.sampled_loop(), list(self.machine.radial_controllers))
 
     def axial_closed_loop_poles(self):
-        a, b, c = self.axial_state_space()
-        return _sampled_closed_loop(a, b, c, [self.machine.axial_controller])
+        """`closed_loop_poles` of the axial axis Z."""
+        return closed_loop(self.sampled_loop(axial=True), [self.machine.axial_controller])
 
 
 def _conjugate_symmetric(values, relative_tolerance=1e-7):
@@ -440,29 +447,3 @@ def _conjugate_symmetric(values, relative_tolerance=1e-7):
         mean = 0.5 * (values[k] + np.conj(values[j]))
         out += [mean, np.conj(mean)]
     return np.array(out)
-
-
-class ClosedLoop(NamedTuple):
-    """Eigen-analysis of a sampled-data closed loop (see `Plant.closed_loop_poles`)."""
-
-    s_poles: np.ndarray
-    z_poles: np.ndarray
-    vectors: np.ndarray
-    plant_participation: np.ndarray
-
-
-def _sampled_closed_loop(a, b, c, controllers):
-    sample_time = controllers[0].sample_time_s
-    n = a.shape[0]
-    ad, bd = zoh_discretize(a, b, sample_time)
-    blocks = [ctrl.discrete_state_space() for ctrl in controllers]
-    ac = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
-    bc = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
-    cc = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
-    dc = scipy.linalg.block_diag(*[blk[3] for blk in blocks])
-    # controller input e = -y, output u = cc xc + dc e
-    closed = np.block([[ad - bd @ dc @ c, bd @ cc], [-bc @ c, ac]])
-    z, left, right = scipy.linalg.eig(closed, left=True)
-    participation = np.abs(left.conj() * right)
-    share = participation[:n].sum(axis=0) / participation.sum(axis=0)
-    return ClosedLoop(np.log(z.astype(complex)) / sample_time, z, right, share)

@@ -174,6 +174,17 @@ class _Captions:
             raise AmbidError(f"caption template {name!r} cannot be filled: {error!r}") from None
 
 
+def _findings(root, path, machine, what):
+    """The findings a stage wrote next to a result (`ambid.findings`), as a block where the result is quoted."""
+    if not (root / path).exists():
+        return Text(f"No findings table for {what}.")
+    frame = findings_frame(read_findings(root / path))
+    if frame.empty:
+        return Text(f"Findings of {what}: none.")
+    return Table(frame.drop(columns=["stage"]), f"Findings of {what}: **{len(frame)}** (most severe first; a "
+                 "`failure` must not be used as it is).", f"results/{machine}/{path}")
+
+
 def _first_paragraph(markdown):
     """The headline of a diagnosis: its first paragraph after the title."""
     blocks = [b for b in markdown.split("\n\n") if b.strip() and not b.startswith("#")]
@@ -208,13 +219,6 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
 
     def table(path, text=""):
         return Table(read_tsv(root / path), text, f"results/{machine}/{path}")
-
-    def findings(path, text):
-        """A stage's findings (`ambid.findings`) as a table, or nothing when it has none."""
-        found = findings_frame(read_findings(root / path)) if (root / path).exists() else None
-        if found is None or found.empty:
-            return []
-        return [Table(found.drop(columns=["value"]), text, f"results/{machine}/{path}")]
 
     sections = []
     summary = Section("Summary")
@@ -256,6 +260,11 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
                             for family, part in floors.groupby("family", sort=False)) + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
+                table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
+                                                  "low-frequency compliance and coil-current ratio over the model's (a "
+                                                  "unit error is 10^3 or 10^6 off; beyond 30x the run stops)."),
+                _findings(root, f"{base}/findings.tsv", machine,
+                          f"the log of run `{run}` (outlier steps before the FRF, how its floor was measured)")] + [
                 Figure(root / base / f"figures/{name}.png", caption("frf", run=run))
                 for name in ("radial_siso", "radial_mimo", "axial")] + [
                 table(f"{base}/floor.tsv",
@@ -264,12 +273,13 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                       "`smooth_fit` from the scatter between neighbouring steps beyond the noise, `fallback` the "
                       "documented constant (config `frf.fallback_floor`) where the data cannot tell; "
                       "`relative_median` / `relative_p90` of systematic_std / |G|, `noise_scale` where the scatter "
-                      "shows the logged noise overstated.")]
-                + findings(f"{base}/findings.tsv", "What the FRF stage found.")))
+                      "shows the logged noise overstated.")]))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
         sections.append(Section(f"Parametric fit {run} (thesis ch. 5.1)", [
+            _findings(root, f"fit/{run}/findings.tsv", machine, f"the fit of run `{run}` (flagged features stay out of "
+                      "the model update)"),
             Table(features.drop(columns=["estimator"]), "Resonances (poles) and anti-resonances (zeros) of every fitted "
                   "channel with their standard uncertainties (the measured columns of thesis Table 6.4 / 5.2).",
                   f"results/{machine}/fit/{run}/features.tsv"),

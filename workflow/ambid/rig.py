@@ -30,11 +30,12 @@ import scipy.linalg
 import scipy.optimize
 
 from .bearing import ActuatorAxes, force, force_derivatives
-from .effects import COIL_CURRENT_EFFECTS, effect_from_config, series_state_space, split_effects
+from .effects import effect_from_config, split_effects
 from .errors import ConfigError, ModelError
 from .machine import ALL_AXES, machine_from_config
-from .plant import Plant, zoh_discretize
+from .plant import Plant
 from .rig_effects import apply_controller_effects, rig_effect_from_config
+from .sampled_loop import closed_loop_matrix, controller_matrices, coupling_matrix, sampled_system
 
 __all__ = ["RigImperfections", "Rig", "rig_from_config", "RigModel", "SimulationState"]
 
@@ -132,29 +133,6 @@ def rig_from_config(rig_config, machine_config, source=None):
         raise error.within(source=source) from None
 
 
-# ----------------------------------------------------------------- state space
-def _diagonal_chains(effects, kinds, chain):
-    """Block-diagonal MIMO system of per-axis SISO chains over ALL_AXES: library effects named in ``kinds``
-    and rig-only effects (`ambid.rig_effects`) of rig chain ``chain``."""
-    chained = [e for e in effects if e.name in kinds or getattr(e, "rig_chain", None) == chain]
-    blocks = [series_state_space([e.siso_state_space() for e in chained if e.acts_on(axis)]) for axis in ALL_AXES]
-    a = scipy.linalg.block_diag(*[blk[0] for blk in blocks])
-    b = scipy.linalg.block_diag(*[blk[1] for blk in blocks])
-    c = scipy.linalg.block_diag(*[blk[2] for blk in blocks])
-    d = np.diag([blk[3][0, 0] for blk in blocks])
-    return a.reshape(a.shape[0], a.shape[0]), b.reshape(a.shape[0], N_AXES), c.reshape(N_AXES, a.shape[0]), d
-
-
-def _coupling(effects, side):
-    """Static matrix of the couplings (and, on the output side, the sensor gains) on ALL_AXES."""
-    matrix = np.eye(N_AXES)
-    for effect in effects:
-        if (effect.name == "cross_coupling" and effect.side == side) or (
-                side == "output" and getattr(effect, "rig_chain", None) == "output_matrix"):
-            matrix = effect.matrix(ALL_AXES) @ matrix
-    return matrix
-
-
 @dataclass
 class SimulationState:
     """Batched state of the rig and its controllers; trailing axis = batch member.
@@ -198,7 +176,6 @@ class RigModel:
         self.setpoint_m = np.zeros(N_AXES) if setpoint_m is None else np.asarray(setpoint_m, dtype=float)
         plant = Plant(machine)
         self.plant = plant
-        _, input_effects, output_effects = split_effects(machine.effects)  # structure: applied by Plant
         machine = plant.machine  # with the structure effects applied (the actuators' parameters among them)
         nominal = [*machine.radial_electromagnets, machine.axial_electromagnet]
         self.nominal_bias_a = np.array([a.bias_current_a for a in nominal])
@@ -222,19 +199,14 @@ class RigModel:
         self.sensor_shape[4, n_r] = 1.0
         self.gravity = np.concatenate([plant.gravity_force(imp.gravity_m_s2), [0.0]])
 
-        # effects in the time domain
-        self.input_chain = _diagonal_chains(input_effects, set(COIL_CURRENT_EFFECTS), "coil")
-        self.force_chain = _diagonal_chains(input_effects, {"eddy_current"}, "force")
-        self.sensor_chain = _diagonal_chains(output_effects, {"sensor_lowpass"}, "sensor")
-        self.input_coupling = _coupling(input_effects, "input")
-        self.output_coupling = _coupling(output_effects, "output")
-        delay_s = np.array([sum(e.delay_s for e in output_effects if e.name == "delay" and e.acts_on(a)) for a in ALL_AXES])
+        _, input_effects, output_effects = split_effects(machine.effects)
+        self.input_coupling = coupling_matrix(input_effects, "input", ALL_AXES)  # for the static operating point
+        self.output_coupling = coupling_matrix(output_effects, "output", ALL_AXES)
 
-        controllers = list(machine.radial_controllers) + [machine.axial_controller]
-        self._controller_matrices(controllers)
+        self.controllers = list(machine.radial_controllers) + [machine.axial_controller]
+        self._controller_matrices(self.controllers)
         self.operating_point = self._operating_point()
         self._linear_system()
-        self._delays(delay_s)
         self._initial = self._steady_state()
         # one product gives every per-cycle output of the state: coil, force current, actuator
         # position, delayed sensor sample
@@ -245,12 +217,8 @@ class RigModel:
 
     # ------------------------------------------------------------ controller
     def _controller_matrices(self, controllers):
-        blocks = [c.discrete_state_space() for c in controllers]
+        self.ctrl_a, self.ctrl_b, self.ctrl_c, self.ctrl_d, blocks = controller_matrices(controllers)
         self.controller_blocks = blocks
-        self.ctrl_a = scipy.linalg.block_diag(*[b[0] for b in blocks])
-        self.ctrl_b = scipy.linalg.block_diag(*[b[1] for b in blocks])
-        self.ctrl_c = scipy.linalg.block_diag(*[b[2] for b in blocks])
-        self.ctrl_d = np.diag([b[3][0, 0] for b in blocks])
         self.integral_action = np.array([c.integral_gain_a_per_m_s > 0 for c in controllers])
         self.dc_gain = np.array([c.frequency_response([0.0])[0].real if c.integral_gain_a_per_m_s == 0 else np.inf for c in controllers])
 
@@ -315,81 +283,27 @@ class RigModel:
 
     # ------------------------------------------------------------ linear part
     def _linear_system(self):
-        """Continuous linear truth around the operating point, then its exact ZOH discretization.
+        """The sampled-data loop plant around the operating point (`ambid.sampled_loop.sampled_system`).
 
         State ``[input chain, force chain, q, q', sensor chain]``; inputs ``[U2 (5),
-        force-law residual (5), 1]``.
+        force-law residual (5), 1]``; the constant input carries the linearization's
+        force at the operating point and gravity.
         """
         op = self.operating_point
         ki, kx = op["current_stiffness"], op["position_stiffness"]
-        ai, bi, ci, di = self.input_chain
-        ae, be, ce, de = self.force_chain
-        ao, bo, co, do = self.sensor_chain
-        n_i, n_e, n_o, n_q = ai.shape[0], ae.shape[0], ao.shape[0], self.n_q
-        inverse_mass = np.linalg.inv(self.mass)
-        shape = self.actuator_shape
-        stiffness = self.free_stiffness - shape @ np.diag(kx) @ shape.T
-        # force-producing current = X_in (ce x_e + de (ci x_i + di u))
-        coupling = self.input_coupling
         constant = op["force"] - ki * op["force_current"] - kx * op["actuator_position"]
-        sizes = [n_i, n_e, n_q, n_q, n_o]
-        offsets = np.cumsum([0] + sizes)
-        n = offsets[-1]
-        blk = lambda k: slice(offsets[k], offsets[k + 1])  # noqa: E731
-        a = np.zeros((n, n))
-        b = np.zeros((n, 2 * N_AXES + 1))
-        u_cmd, u_res, u_one = slice(0, N_AXES), slice(N_AXES, 2 * N_AXES), 2 * N_AXES
-        a[blk(0), blk(0)] = ai
-        b[blk(0), u_cmd] = bi
-        a[blk(1), blk(0)] = be @ ci
-        a[blk(1), blk(1)] = ae
-        b[blk(1), u_cmd] = be @ di
-        force_gain = inverse_mass @ shape @ np.diag(ki) @ coupling
-        a[blk(2), blk(3)] = np.eye(n_q)
-        a[blk(3), blk(2)] = -inverse_mass @ stiffness
-        a[blk(3), blk(3)] = -inverse_mass @ self.damping
-        a[blk(3), blk(0)] = force_gain @ de @ ci
-        a[blk(3), blk(1)] = force_gain @ ce
-        b[blk(3), u_cmd] = force_gain @ de @ di
-        b[blk(3), u_res] = inverse_mass @ shape
-        b[blk(3), u_one] = inverse_mass @ (shape @ constant + self.gravity)
-        a[blk(4), blk(2)] = bo @ self.sensor_shape
-        a[blk(4), blk(4)] = ao
-        self.a, self.b, self.n_states, self.blocks = a, b, n, blk
-        # outputs of the state: sensor signal before delay, coil current, force current, actuator position
-        sensor = np.zeros((N_AXES, n))
-        sensor[:, blk(2)] = self.output_coupling @ do @ self.sensor_shape
-        sensor[:, blk(4)] = self.output_coupling @ co
-        self.sensor_output = sensor
-        self.coil_state, self.coil_input = np.zeros((N_AXES, n)), di
-        self.coil_state[:, blk(0)] = ci
-        self.force_state = np.zeros((N_AXES, n))
-        self.force_state[:, blk(0)] = coupling @ de @ ci
-        self.force_state[:, blk(1)] = coupling @ ce
-        self.force_input = coupling @ de @ di
-        self.position_state = np.zeros((N_AXES, n))
-        self.position_state[:, blk(2)] = shape.T
-        self.transition, self.input_matrix = zoh_discretize(a, b, self.sample_time_s)
-
-    def _delays(self, delay_s):
-        """Sensor delays: each axis samples ``C x`` at ``t_k - tau`` exactly.
-
-        With ``tau = m T + delta``, the sample is ``C (Phi(T - delta) x_j + Gamma(T -
-        delta) u_j)`` of step ``j = k - m - 1``, i.e. a fractional-step output pushed
-        into a buffer and read ``m + 1`` cycles later (no delay: ``m + 1 = 1``).
-        """
-        t = self.sample_time_s
-        whole = np.floor(delay_s / t + 1e-9).astype(int)
-        fraction = delay_s - whole * t
-        self.delay_steps = whole + 1
-        self.buffer_length = int(self.delay_steps.max()) + 1
-        self.delayed_state = np.zeros((N_AXES, self.n_states))
-        self.delayed_input = np.zeros((N_AXES, self.input_matrix.shape[1]))
-        for k in range(N_AXES):
-            phi, gamma = zoh_discretize(self.a, self.b, t - fraction[k])
-            self.delayed_state[k] = self.sensor_output[k] @ phi
-            self.delayed_input[k] = self.sensor_output[k] @ gamma
-        self.delay_s = delay_s
+        system = sampled_system(self.mass, self.damping, self.free_stiffness, self.actuator_shape, self.sensor_shape, ki, kx,
+                                self.rig.machine.effects, ALL_AXES, self.sample_time_s, constant_force=constant,
+                                static_force=self.gravity)
+        self.system = system
+        self.a, self.b, self.n_states, self.blocks = system.a, system.b, system.n_states, system.blocks
+        self.sensor_output = system.sensor_output
+        self.coil_state, self.coil_input = system.coil_state, system.coil_input
+        self.force_state, self.force_input = system.force_state, system.force_input
+        self.position_state = system.position_state
+        self.transition, self.input_matrix = system.transition, system.input_matrix
+        self.delay_s, self.delay_steps, self.buffer_length = system.delay_s, system.delay_steps, system.buffer_length
+        self.delayed_state, self.delayed_input = system.delayed_state, system.delayed_input
         self._axis_index = np.arange(N_AXES)
 
     def _steady_state(self):
@@ -448,21 +362,10 @@ class RigModel:
     def closed_loop_spectral_radius(self):
         """Largest |eigenvalue| of the linearized, noise-free closed loop (plant, controllers, delays).
 
-        The one-cycle map is linear in the deviation from the operating point; its
-        matrix is obtained by stepping the unit deviations as one batch.
+        The loop the model side judges too (`ambid.sampled_loop.closed_loop_matrix`), here at the
+        rig's true operating point.
         """
-        rest = self.initial_state(1)
-        sizes = [rest.plant.shape[0], rest.controller.shape[0], rest.sensor_buffer[:, :, 0].size]
-        n = sum(sizes)
-        batch = self.initial_state(n + 1)
-        deviation = np.eye(n + 1)[:n]  # last column: no deviation (the reference)
-        batch.plant += deviation[: sizes[0]]
-        batch.controller += deviation[sizes[0] : sizes[0] + sizes[1]]
-        batch.sensor_buffer += deviation[sizes[0] + sizes[1] :].reshape(rest.sensor_buffer.shape[:2] + (n + 1,))
-        self.step(batch, np.zeros((N_AXES, n + 1)), nonlinear=False, quantize=False)
-        after = np.vstack([batch.plant, batch.controller, np.roll(batch.sensor_buffer, -1, axis=0).reshape(-1, n + 1)])
-        one_cycle = after[:, :n] - after[:, n:]
-        return float(np.max(np.abs(np.linalg.eigvals(one_cycle))))
+        return float(np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(self.system, self.controllers)))))
 
     def step(self, state, excitation_a, rng=None, nonlinear=True, quantize=True):
         """Advance every member one controller cycle.
@@ -527,20 +430,9 @@ class RigModel:
     def sampled_frequency_response(self, frequency_hz):
         """FRF of the linearized truth from U2 samples to sensor samples, (n_f, 5, 5) [m/A].
 
-        ``C_d(z) (zI - Phi)^-1 Gamma_u`` at ``z = exp(j w T)`` including the
-        delays: what the rig measures at small amplitude without noise.
+        What the rig measures at small amplitude without noise (`ambid.sampled_loop.SampledSystem.frequency_response`).
         """
-        t = self.sample_time_s
-        z = np.exp(2j * np.pi * np.asarray(frequency_hz, dtype=float) * t)
-        gamma = self.input_matrix[:, :N_AXES]
-        out = np.empty((z.size, N_AXES, N_AXES), dtype=complex)
-        identity = np.eye(self.n_states)
-        for k, zk in enumerate(z):
-            resolvent = np.linalg.solve(zk * identity - self.transition, gamma)
-            # the fractional-step output of step j (which also sees u_j) is read d cycles later
-            sample = self.delayed_state @ resolvent + self.delayed_input[:, :N_AXES]
-            out[k] = zk ** (-self.delay_steps[:, None]) * sample
-        return out
+        return self.system.frequency_response(frequency_hz)
 
 
 def _quantize(values, step):

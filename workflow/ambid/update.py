@@ -29,7 +29,7 @@ import pandas as pd
 import scipy.optimize
 
 from .channel_fit import select_channels
-from .errors import AmbidError, settings_from_mapping
+from .errors import AmbidError, ConfigError, settings_from_mapping
 from .modal_features import LIGHT_DAMPING, ModalFeatureModel, design_variables, root_feature_derivatives, root_features
 from .plant import damping_ratio
 
@@ -68,13 +68,45 @@ class UpdateSettings:
 
     @classmethod
     def from_config(cls, section, machine_section=None):
+        """Settings from the ``update:`` section and a machine's ``update:`` entry; `ConfigError` naming the key.
+
+        Every check that needs no data runs here (the workflow calls it before any job).
+        """
         merged = {**(section or {}), **(machine_section or {})}
         settings = settings_from_mapping(cls, merged, "update")
         if settings.optimizer not in ("least_squares", "nelder_mead"):
-            raise UpdateError(f"update.optimizer must be 'least_squares' or 'nelder_mead', not {settings.optimizer!r}")
-        if settings.modes < 1 or settings.starts < 1:
-            raise UpdateError("update.modes and update.starts must be >= 1")
+            raise ConfigError("update.optimizer", f"must be 'least_squares' or 'nelder_mead', not {settings.optimizer!r}")
+        for key in ("modes", "starts"):
+            if getattr(settings, key) < 1:
+                raise ConfigError(f"update.{key}", f"must be >= 1, got {getattr(settings, key)}")
+        lower, upper = settings.stiffness_bounds
+        if not 0 < lower < 1 < upper:
+            raise ConfigError("update.stiffness_bounds", f"factors on E must satisfy 0 < lower < 1 < upper (the nominal "
+                                                         f"modulus inside), got [{lower}, {upper}]")
+        lower, upper = settings.damping_bounds
+        if not 0 <= lower < upper:
+            raise ConfigError("update.damping_bounds", f"must satisfy 0 <= lower < upper, got [{lower}, {upper}]")
         return settings
+
+    def check_against(self, machine, key="update"):
+        """Checks against the nominal machine, before any job: design tags on its rotor, modes it retains.
+
+        ``key`` is where the machine's ``update:`` entry lives (``machines.<name>.update``).
+        """
+        tags = sorted({tag for element in machine.rotor.elements for tag in element.tags})
+        taken = set()
+        for i, tag in enumerate(self.tags):
+            group = set(machine.rotor.elements_tagged(tag))
+            if not group:
+                raise ConfigError(f"{key}.tags[{i}]", f"no element of machine {machine.name!r} carries the tag {tag!r}; "
+                                                     f"its tags: {tags}")
+            if group & taken:
+                raise ConfigError(f"{key}.tags[{i}]", f"tag {tag!r} shares elements with another design tag")
+            taken |= group
+        flexible = machine.retained_modes - 2  # the two rigid-body modes of each plane
+        if self.modes > flexible:
+            raise ConfigError("update.modes", f"{self.modes} flexible modes, but the model of {machine.name!r} retains "
+                                              f"{flexible} (rotor.retained_modes {machine.retained_modes})")
 
 
 def measured_features(frame, channels, modes):
@@ -97,6 +129,8 @@ def measured_features(frame, channels, modes):
     """
     wanted = set(channels)
     rows = frame[(frame["estimator"] == "output_error") & frame["kind"].isin(["resonance", "anti_resonance"])]
+    if "flag" in rows:  # failed fits, negative delays, overdamped "resonances" (ambid.channel_fit.fit_verdict)
+        rows = rows[rows["flag"].fillna("") == ""]
     rows = rows[np.array([(o, i) in wanted for o, i in zip(rows["output"], rows["input"])], dtype=bool)]
     rows = rows[(rows["damping_ratio"] > 0) & (rows["damping_ratio"] < LIGHT_DAMPING)]
     # a root the fit cannot place (damping uncertain by more than its value: a near-cancelling pole-zero
@@ -111,7 +145,8 @@ def measured_features(frame, channels, modes):
     columns = ["output", "input", "root", "number", "frequency_hz", "damping_ratio", "frequency_std_hz", "damping_std",
                "modal_constant"]
     if rows.empty:
-        raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)}")
+        raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)} "
+                          "(flagged fits left out: see the fit's findings.tsv)")
     return rows[columns].reset_index(drop=True)
 
 

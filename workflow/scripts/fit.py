@@ -3,8 +3,9 @@
 import numpy as np
 import pandas as pd
 
-from ambid.channel_fit import (FitError, feature_rows, fit_channel, known_response, model_rows, rigid_pole_hz,
-                               select_channels)
+from ambid.channel_fit import (MAX_CHI2, FitError, feature_rows, fit_channel, fit_verdict, known_response, model_rows,
+                               real_zero_hz, rigid_pole_hz, select_channels)
+from ambid.findings import Finding, write_findings
 from ambid.fit import classify_poles, levy_thesis
 from ambid.frf import channel
 from ambid.io import read_parquet, rule_log, write_parquet, write_tsv
@@ -21,7 +22,7 @@ table, _ = read_parquet(snakemake.input.frf, kind="frf")
 estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
 hint = rigid_pole_hz(plant)
 numerator_order, denominator_order = settings["thesis_orders"]
-features, models, panels, fitted, diagrams, selected = [], [], [], [], {}, {}
+features, models, panels, fitted, diagrams, selected, findings = [], [], [], [], {}, {}, []
 for output, input_axis in select_channels(settings["channels"]):
     frequency, measured, std = channel(table, estimator, output, input_axis)
     if frequency.size == 0:
@@ -31,25 +32,31 @@ for output, input_axis in select_channels(settings["channels"]):
     known = known_response(plant, output, input_axis, frequency)
     try:
         result = fit_channel(frequency, measured, std=std, known=known, modes=settings["modes"], orders=settings["orders"],
-                             lowpass=settings["lowpass"], delay=settings["delay"], rigid_hint_hz=hint)
-    except FitError as error:
-        raise FitError(f"{snakemake.input.frf}: channel {label}: {error}") from None
+                             lowpass=settings["lowpass"], delay=settings["delay"], rigid_hint_hz=hint,
+                             zero_hint_hz=real_zero_hz(plant, output, input_axis, frequency.max()))
+    except FitError as error:  # this channel has no model: said where the fit is quoted, the others go on
+        log.warning("%s: %s", label, error)
+        findings.append(Finding("fit", "failure", "fit_failed", label, f"no fit: {error}"))
+        continue
     log.info("%s: order %d, %d flexible mode(s) at %s Hz, delay %.1f us, chi2/dof %.2f, %d evaluations; dropped: %s",
              label, result.order, result.selected_hz.size, np.round(result.selected_hz, 2), result.model.delay_s * 1e6,
              result.cost, result.iterations, "; ".join(result.dropped) or "nothing")
-    features += feature_rows(result, output, input_axis, "output_error")
+    flag, verdict = fit_verdict(result, frequency, measured, known, label, settings.get("max_chi2", MAX_CHI2))
+    findings += verdict
+    features += feature_rows(result, output, input_axis, "output_error", flag, (frequency.min(), frequency.max()))
     models.append(model_rows(result, output, input_axis))
     reference = levy_thesis(frequency, measured, numerator_order, denominator_order)
     for row in classify_poles(reference.poles, reference.zeros, (frequency.min(), frequency.max())):
         if row["kind"] != "stable_rigid":
             features.append({"output": output, "input": input_axis, "estimator": "thesis", **row,
-                             "frequency_std_hz": np.nan, "damping_std": np.nan, "modal_constant": np.nan})
+                             "frequency_std_hz": np.nan, "damping_std": np.nan, "modal_constant": np.nan, "flag": ""})
     diagrams[label], selected[label] = result.stabilization, result.selected_hz
     panels.append((label, frequency, measured, std))
     fitted.append({"fit (output error)": result.model.frequency_response(frequency, known),
                    f"thesis {numerator_order}/{denominator_order}": reference.frequency_response(frequency)})
 if not models:
-    raise FitError(f"{snakemake.input.frf}: no channel of {settings['channels']!r} was measured")
+    reasons = "; ".join(f"{f.subject}: {f.message}" for f in findings) or "not in the FRF"
+    raise FitError(f"{snakemake.input.frf}: no channel of {settings['channels']!r} could be fitted ({reasons})")
 features = pd.DataFrame(features)
 write_parquet(features, snakemake.output.features, kind="fit_features",
               units={"frequency_hz": "Hz", "damping_ratio": "-", "frequency_std_hz": "Hz", "damping_std": "-", "number": "-",
@@ -65,4 +72,5 @@ save_figure(bode_measured(panels, f"{title}: measured and fitted", fits=fitted),
 band = (min(p[1].min() for p in panels), max(p[1].max() for p in panels))
 save_figure(stabilization_diagram(diagrams, selected, band, f"{title}: stabilization diagrams"), snakemake.output.stabilization,
             snakemake.params.dpi)
-log.info("fit written: %d channels, %d feature rows", len(models), len(features))
+write_findings(findings, snakemake.output.findings)
+log.info("fit written: %d channels, %d feature rows, %d finding(s)", len(models), len(features), len(findings))

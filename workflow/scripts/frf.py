@@ -1,20 +1,25 @@
-"""Rule `frf`: SISO and MIMO ETFE of one identification run (or a user's UFF58 FRFs) -> FRF Parquet, UFF58, Bode plots."""
+"""Rule `frf`: one identification run (or a user's UFF58 FRFs), its model-free checks -> SISO and MIMO ETFE, floor,
+findings, UFF58, Bode plots."""
 
 import numpy as np
 
+from ambid.errors import LogError
 from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
-from ambid.frf import channel, frf_from_log
+from ambid.frf import channel, frf_from_log, log_arrays
 from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import log_source, noise_from_scatter, read_identification_log
 from ambid.machine import RADIAL_AXES
+from ambid.plausibility import FRF_SETTINGS, check_log
 from ambid.plots import bode_measured, save_figure
 from ambid.readers import read_uff_frf
 from ambid.uff import frf_channels, write_uff58
 
 log = rule_log(snakemake.log[0], "frf")
 
-floor_settings = FloorSettings.from_config(snakemake.params.floor)
+settings = {**FRF_SETTINGS, **snakemake.params.settings}
+floor_settings = FloorSettings.from_config({k: v for k, v in settings.items() if k not in FRF_SETTINGS})
+findings = []
 if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no raw log
     source = snakemake.input.uff
     table, provenance = read_uff_frf(source, **snakemake.params.uff_options)
@@ -23,17 +28,29 @@ if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no r
     table, floors = systematic_floor(table, {}, None, floor_settings)
 else:
     frame, info = read_identification_log(snakemake.input.log)
+    metadata = info["metadata"]
+    user = snakemake.params.source
+    if user and user["file"] != snakemake.input.log and metadata.get("original_sha256") != user["digest"]:
+        # a converted log left from another version of the user's file (Snakemake lost track of it): never let it
+        # stand for this one
+        raise LogError(snakemake.input.log, f"is not the conversion of {user['file']} as it is now (content digest "
+                                            f"{user['digest']}; converted from {metadata.get('original', 'unknown')}, "
+                                            f"digest {metadata.get('original_sha256', 'unknown')}): delete it and "
+                                            "Snakemake converts the file again")
     source = log_source(snakemake.input.log, info)  # errors name the user's file
     if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
         frame = noise_from_scatter(frame, source)
         log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
                  ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
-    table, floors, mimo = frf_from_log(frame, floor_settings, source=source)
+    frame, findings = check_log(frame, log_arrays(frame), settings, snakemake.input.log, metadata.get("source_lines"),
+                                metadata.get("original"))
+    for finding in findings:
+        log.warning("%s", finding.message)
+    table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
     if mimo is not None:
         condition = mimo[3]
         log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
 write_tsv(floors, snakemake.output.floor)
-findings = []
 for row in floors.itertuples():
     log.info("floor %s %s: %s, systematic %.3g %% median (p90 %.3g %%), noise scaled by %.3g", row.family, row.band, row.method,
              100 * row.relative_median, 100 * row.relative_p90, row.noise_scale)
@@ -68,5 +85,5 @@ save_figure(bode_measured([(f"{a} (SISO)", *channel(table, "siso", a, a)) for a 
 save_figure(bode_measured([(f"{a} ({estimator.upper()})", *channel(table, estimator, a, a)) for a in diagonal],
                           f"{title}: radial axes, {estimator.upper()}"), snakemake.output.radial_mimo, dpi)
 save_figure(bode_measured([("Z (SISO)", *channel(table, "siso", "Z", "Z"))] if "Z/Z" in siso else [], f"{title}: axial"),
-              snakemake.output.axial, dpi)
-log.info("FRF written: %d rows", len(table))
+            snakemake.output.axial, dpi)
+log.info("FRF written: %d rows, %d finding(s)", len(table), len(findings))

@@ -11,5 +11,10 @@ log.info("%s (%s, %s): %d steps on axes %s", snakemake.input.raw, provenance["fo
          frame.groupby(["excited_axis", "step"]).ngroups, sorted(set(frame["excited_axis"])))
 for note in provenance["notes"]:
     log.info("%s: %s", snakemake.input.raw, note)
-write_identification_log(frame, snakemake.output.log, {"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                                                       "provenance": provenance})
+metadata = {"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run, "provenance": provenance,
+            "original": snakemake.input.raw,
+            # the user's file as converted: the FRF stage refuses a converted log that stands for another version of it
+            "original_sha256": snakemake.params.source["digest"]}
+if "source_lines" in frame.attrs:  # a .m file: the line of each step, for messages that name it
+    metadata["source_lines"] = frame.attrs["source_lines"]
+write_identification_log(frame, snakemake.output.log, metadata)

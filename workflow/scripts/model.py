@@ -3,7 +3,7 @@
 import pandas as pd
 
 from ambid.io import frf_frame, read_yaml, rule_log, write_parquet, write_tsv
-from ambid.loop import stability_summary
+from ambid.loop import check_stable, stability_summary
 from ambid.machine import AXIAL_AXIS, RADIAL_AXES, machine_from_config
 from ambid.modes import mode_table
 from ambid.plant import Plant
@@ -40,12 +40,13 @@ write_parquet(
 )
 modes = mode_table(plant)
 write_tsv(modes, snakemake.output.modes)
+check_stable(plant, f"{snakemake.input.machine}: model variant {snakemake.wildcards.variant!r}")
 stability = stability_summary(plant)
-write_tsv(stability, snakemake.output.stability)
 for row in stability:
-    log.info("%s: closed-loop spectral radius %.6f, sensitivity peak %.1f dB at %.0f Hz (ISO 14839-3 zone %s)",
-             row["axis"], row["spectral_radius"], row["sensitivity_peak_db"], row["sensitivity_peak_hz"],
-             row["iso_14839_zone"])
+    log.info("%s: closed-loop spectral radius %.6f (%s), sensitivity peak %.1f dB at %.0f Hz (ISO 14839-3 zone %s)",
+             row["axis"], row["spectral_radius"], row["verdict"], row["sensitivity_peak_db"], row["sensitivity_peak_hz"],
+             row["iso_14839_zone"] or "none")
+write_tsv(stability, snakemake.output.stability)
 
 title = f"{machine.name} ({snakemake.wildcards.variant}): open-loop plant"
 dpi = snakemake.params.dpi

@@ -1,0 +1,141 @@
+"""Plausibility of a log before the FRF: radial runs, units against the nominal model, outlier cells."""
+
+import numpy as np
+import pytest
+
+from ambid.errors import LogError
+from ambid.frf import log_arrays
+from ambid.logs import CHANNELS, noise_from_scatter
+from ambid.mfile import read_thesis_m
+from ambid.plausibility import _scores, check_log, check_units, find_outliers
+
+from conftest import ROOT
+
+EXAMPLE = ROOT / "data/demo20/thesis01/identification.m"
+SOURCE = "data/demo20/thesis01/identification.m"
+
+
+@pytest.fixture(scope="module")
+def example():
+    frame = read_thesis_m(EXAMPLE)
+    lines = frame.attrs["source_lines"]
+    return noise_from_scatter(frame), lines
+
+
+def edited(frame, axis, step, channel, value):
+    frame = frame.copy()
+    cell = (frame["excited_axis"] == axis) & (frame["step"] == step) & (frame["channel"] == channel)
+    frame.loc[cell, ["re", "im"]] = [value.real, value.imag]
+    return frame
+
+
+def scaled(frame, channels, factor, frequency=1.0):
+    frame = frame.copy()
+    chosen = frame["channel"].str.startswith(channels)
+    frame.loc[chosen, ["re", "im", "noise_std"]] *= factor
+    frame["frequency_hz"] *= frequency
+    return frame
+
+
+class TestUnits:
+    def test_the_example_log_is_plausible(self, example, demo_plant):
+        rows = check_units(log_arrays(example[0]), demo_plant, SOURCE)
+        ratios = {(r["check"], r["axes"]): r["ratio"] for r in rows}
+        assert set(ratios) == {(c, a) for c in ("compliance", "coil_current") for a in ("DX DY NX NY", "Z")} | {
+            ("frequency", "DX DY NX NY"), ("frequency", "Z")}
+        assert all(0.5 < ratio < 2 for ratio in ratios.values()), ratios  # the rig's truth is near its model
+
+    @pytest.mark.parametrize(
+        "channels, factor, frequency, named",
+        [
+            (("V2_",), 1e6, 1.0, "positions look like um"),
+            (("V2_",), 1e3, 1.0, "positions look like mm"),
+            (("U2_", "I_"), 1e3, 1.0, "currents look like mA"),
+            (("I_",), 1e3, 1.0, "coil currents look like mA"),
+            ((), 1.0, 1e-3, "frequencies look like kHz"),
+            ((), 1.0, 2 * np.pi, "look like rad/s"),
+        ],
+    )
+    def test_a_unit_error_is_named(self, example, demo_plant, channels, factor, frequency, named):
+        frame = scaled(example[0], channels, factor, frequency) if channels else scaled(example[0], ("none",), 1.0, frequency)
+        with pytest.raises(LogError, match=named) as error:
+            check_units(log_arrays(frame), demo_plant, SOURCE, "config/machines/demo20.yaml")
+        assert str(error.value).startswith(SOURCE) and "config/machines/demo20.yaml" in str(error.value)
+
+    def test_a_model_off_by_a_factor_of_three_passes(self, example, demo_plant):
+        rows = check_units(log_arrays(scaled(example[0], ("V2_",), 3.0)), demo_plant, SOURCE)
+        assert 2.5 < [r for r in rows if r["check"] == "compliance"][0]["ratio"] < 3.5
+
+
+class TestAxes:
+    def test_mimo_needs_every_radial_run(self, example):
+        frame = example[0][example[0]["excited_axis"] != "NY"]
+        with pytest.raises(LogError, match=r"identification.m: no run excites NY \(data_exc_ny\).*frf.estimator: siso"):
+            check_log(frame, log_arrays(frame), {}, "identification.parquet", original=SOURCE)
+        single = example[0][example[0]["excited_axis"] == "DX"]
+        with pytest.raises(LogError, match="no run excites DY, NX, NY: the MIMO"):
+            check_log(single, log_arrays(single), {}, "identification.parquet")
+        kept, findings = check_log(single, log_arrays(single), {"estimator": "siso"}, "identification.parquet")
+        assert len(kept) == len(single) and findings == []
+
+
+class TestOutliers:
+    def test_the_example_log_has_none_with_a_wide_margin(self, example):
+        frame, lines = example
+        kept, findings = check_log(frame, log_arrays(frame), {}, "x.parquet", lines, SOURCE)
+        assert findings == [] and len(kept) == len(frame)
+        # the largest score of a cell alone at its step is far below the threshold (100)
+        arrays = log_arrays(frame)
+        largest = 0.0
+        for axis, (frequency, coefficients, noise) in arrays.items():
+            amplitude = frame[frame["excited_axis"] == axis].groupby("step")["amplitude_a"].first().to_numpy()
+            scores = np.array([_scores(frequency, coefficients[:, j] / amplitude, noise[:, j] / amplitude)[1]
+                               for j in range(20)]).T
+            alone = np.count_nonzero(scores > 10, axis=1) < 3
+            largest = max(largest, scores[alone].max())
+        assert largest < 20
+
+    def test_a_typo_is_refused_with_its_line_and_column(self, example):
+        frame, lines = example
+        typo = edited(frame, "DX", 12, "V2_DX", 0.1 + 0j)  # 1e+05 um in the file
+        with pytest.raises(LogError) as error:
+            check_log(typo, log_arrays(typo), {}, "x.parquet", lines, SOURCE)
+        message = str(error.value)
+        assert message.startswith(f"{SOURCE}:20: data_exc_dx row 13, column 7 (V2_DX [um]) = 100000")
+        assert "frf.outliers: exclude" in message
+
+    def test_a_typo_in_a_parquet_log_names_its_rows(self, example):
+        frame, _ = example
+        typo = edited(frame, "NY", 40, "U2_NY", -3.0 + 1.0j)
+        with pytest.raises(LogError, match=r"x.parquet: rows \d+-\d+ \(excited_axis=NY, step=40\), row \d+ \(U2_NY\)"):
+            check_log(typo, log_arrays(typo), {}, "x.parquet")
+
+    def test_a_huge_cell_is_an_outlier_not_a_crash(self, example):
+        frame, _ = example
+        huge = edited(frame, "DX", 12, "V2_DX", 1e300 + 0j)
+        with pytest.raises(LogError, match="V2_DX = 1e\\+300"):
+            check_log(huge, log_arrays(huge), {}, "x.parquet")
+
+    def test_excluded_when_allowed_with_a_finding_on_every_radial_run(self, example):
+        frame, lines = example
+        typo = edited(frame, "DX", 12, "V2_DX", 0.1 + 0j)
+        kept, findings = check_log(typo, log_arrays(typo), {"outliers": "exclude"}, "x.parquet", lines, SOURCE)
+        assert [f.code for f in findings] == ["outlier_excluded"] and findings[0].subject == "DX step 12 (122.99 Hz)"
+        assert f"{SOURCE}:20" in findings[0].message
+        assert len(frame) - len(kept) == 4 * 20  # the step's frequency on the four radial runs (MIMO grid)
+        assert set(kept[kept["step"] == 12]["excited_axis"]) == {"Z"}
+        assert check_log(kept, log_arrays(kept), {}, "x.parquet")[1] == []
+
+    def test_a_resonance_narrower_than_the_grid_is_no_outlier(self):
+        """A pole moves two channels or more at its step (here, open loop: the positions of its plane only)."""
+        frequency = np.linspace(1.0, 750.0, 250)
+        mode = 1.0 / (1 - (frequency / frequency[120]) ** 2 + 2j * 1e-5 * frequency / frequency[120])
+        coefficients = np.outer(np.ones(250), np.linspace(1.0, 2.0, 20)).astype(complex)
+        for name in ("V2_DX", "V2_NX"):
+            coefficients[:, CHANNELS.index(name)] += 1e-3 * mode
+        arrays = {"DX": (frequency, coefficients, np.full(coefficients.shape, 1e-9))}
+        steps = {"DX": (np.arange(250), np.ones(250))}
+        assert find_outliers(arrays, steps, 100.0) == []
+        coefficients[60, CHANNELS.index("V2_DX")] *= 1.5  # one cell
+        found = find_outliers(arrays, steps, 100.0)
+        assert [(o.step, o.channel) for o in found] == [(60, "V2_DX")]

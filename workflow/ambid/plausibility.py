@@ -1,0 +1,308 @@
+"""Plausibility of an identification log against the nominal model, before any estimate.
+
+A log from another writer can be well formed (`ambid.logs.validate_identification_log`)
+and still not be what it claims.  Three checks, each raising a `LogError` that
+names the file, the rows (or, for a converted thesis ``.m`` log, its lines)
+and the likely cause.  Axes and outliers need no model and run in the FRF
+stage (`check_log`); units need the nominal model and run in their own rule
+before it (`check_units`), so that the FRF does not depend on the model.
+
+* **Axes**: the MIMO estimate ``P = V U^-1`` (`ambid.frf.mimo_etfe`) needs a
+  run exciting each radial axis; a log without one is refused for it instead
+  of silently falling back to SISO.
+* **Units**: the log's frequencies against the machine's identification band,
+  and its low-frequency compliance ``|V2/U2|`` (dominated by the bearings'
+  negative stiffness, ``-ki/kx``, which a model knows to well within a factor
+  of 30) and coil-current ratio ``|I/U2|`` (1 at low frequency) against the
+  nominal model.  A factor of about 10^3 or 10^6 names the likely unit
+  (positions in um or mm, currents in mA, frequencies in kHz).
+* **Outliers**: each channel's response to the excitation, ``c / amplitude``
+  (a closed-loop transfer function, smooth in frequency), against the
+  interpolation of its neighbours, in units of the larger of the logged noise
+  and the local scatter of the neighbours' own interpolation residuals.  A cell
+  far above the threshold, alone at its step, is an outlier: a typo, a glitch.
+  A resonance narrower than the grid looks the same in one channel, but it
+  moves at least two at its step (in closed loop the excited axis' position,
+  control current and coil currents; open-loop, the positions of its plane).  The workflow
+  refuses it, or excludes its step when ``frf.outliers: exclude``.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import LogError
+from .findings import Finding
+from .logs import CHANNELS, _where
+from .machine import AXIAL_AXIS, RADIAL_AXES
+from .mfile import THESIS_COLUMNS, _LAYOUT, variable_name
+from .plant import RIGID_MODES
+
+__all__ = ["FRF_SETTINGS", "Outlier", "check_axes", "check_units", "find_outliers", "outlier_text", "exclude_outliers",
+           "check_log"]
+
+#: Defaults of the ``frf:`` config section.
+FRF_SETTINGS = {"estimator": "mimo", "outliers": "refuse", "outlier_threshold": 100.0}
+#: A unit error is called when the log is this far from the nominal model (a model is rarely off by 3x).
+UNIT_FACTOR = 30.0
+_WINDOW = 6  # neighbours on each side that set an outlier's local scale
+_COHERENT = 2  # channels departing together at a step: a resonance (seen by two sensors at least), not a typo
+
+
+def check_axes(frame, estimator, source):
+    """Refuse a log without a run exciting each radial axis when the MIMO estimate is asked for."""
+    present = set(frame["excited_axis"])
+    missing = [axis for axis in RADIAL_AXES if axis not in present]
+    if estimator == "mimo" and missing:
+        thesis = str(source).endswith(".m")
+        names = ", ".join(f"{axis} ({variable_name(axis)})" if thesis else axis for axis in missing)
+        raise LogError(source, f"no run excites {names}: the MIMO estimate needs a run exciting each of "
+                               f"{', '.join(RADIAL_AXES)} (set frf.estimator: siso for SISO estimates of the axes present)")
+
+
+def _nearest_unit(log_ratio, kind):
+    """A unit that explains a factor 10^log_ratio between the log and the model ("" for none, or a dead channel)."""
+    if not np.isfinite(log_ratio):
+        return ""
+    steps = int(np.round(log_ratio / 3))
+    if kind == "frequency":
+        return {-1: "frequencies look like kHz", 1: "frequencies look like mHz"}.get(steps, "")
+    if kind == "current":
+        return {1: "coil currents look like mA", -1: "the control currents U2 look like mA (coil currents in A)"}.get(steps, "")
+    return {3: "positions look like nm", 2: "positions look like um", 1: "positions look like mm",
+            -1: "currents look like mA (U2 and coil currents)",
+            -2: "positions look like m where um are expected (a thesis .m holds positions in um)"}.get(steps, "")
+
+
+def _refuse(source, what, ratio, kind, detail, model_source):
+    with np.errstate(divide="ignore"):
+        unit = _nearest_unit(np.log10(ratio), kind)
+    hint = f"{unit} (the log must hold SI units: m, A, Hz)" if unit else "check the units of the log (SI: m, A, Hz)"
+    raise LogError(source, f"{what} is {ratio:.3g} times the nominal model's {detail}: {hint}, or the model "
+                           f"({model_source}) is off by as much")
+
+
+def check_units(arrays, plant, source, model_source="the machine file"):
+    """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more.
+
+    Parameters
+    ----------
+    arrays : dict
+        `ambid.frf.log_arrays` of the log.
+    plant : ambid.plant.Plant
+        The nominal model (machine file): its identification grids, its first
+        flexible mode, its low-frequency compliance.
+    source : str
+    model_source : str
+        The machine file, named as the other suspect.
+
+    Returns
+    -------
+    list of dict
+        One row per check passed: ``check`` (frequency / compliance / coil_current), ``axes``,
+        ``ratio`` (log over nominal model) and ``below_hz`` (the band compared; NaN for frequencies).
+    """
+    machine = plant.machine
+    rows = []
+    for axes, grid in ((RADIAL_AXES, machine.radial_grid), ((AXIAL_AXIS,), machine.axial_grid)):
+        frequency = np.concatenate([arrays[a][0] for a in axes if a in arrays] or [np.array([])])
+        if frequency.size == 0:
+            continue
+        ratio = np.median(frequency) / np.median(grid.frequency_hz)
+        if abs(np.max(frequency) / grid.stop_hz / (2 * np.pi) - 1) < 0.01:
+            raise LogError(source, f"frequencies of {', '.join(a for a in axes if a in arrays)} end at "
+                                   f"{np.max(frequency):.6g}, 2 pi times the {grid.stop_hz:g} Hz of {model_source} "
+                                   "(frequency_grid): they look like rad/s; the log must hold Hz")
+        if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
+            _refuse(source, f"the median frequency of {', '.join(a for a in axes if a in arrays)}", ratio, "frequency",
+                    f"identification grid ({grid.start_hz:g}-{grid.stop_hz:g} Hz, frequency_grid)", model_source)
+        rows.append({"check": "frequency", "axes": " ".join(a for a in axes if a in arrays), "ratio": float(ratio),
+                     "below_hz": np.nan})
+    first_flexible_hz = plant.modes.frequency_hz[RIGID_MODES]
+    for axes, model in ((RADIAL_AXES, lambda f: np.diagonal(plant.radial_frequency_response(f), axis1=1, axis2=2)),
+                        ((AXIAL_AXIS,), lambda f: plant.axial_frequency_response(f)[:, None])):
+        present = [a for a in axes if a in arrays]
+        if not present or (axes == (AXIAL_AXIS,) and machine.axial_electromagnet is None):
+            continue
+        compliance, amplifier = [], []
+        for axis in present:
+            frequency, coefficients, _ = arrays[axis]
+            low = frequency <= 0.3 * first_flexible_hz
+            low = low if np.count_nonzero(low) >= 3 else np.ones_like(low)
+            u = coefficients[low, CHANNELS.index(f"U2_{axis}")]
+            v = coefficients[low, CHANNELS.index(f"V2_{axis}")]
+            coil = 0.5 * (coefficients[low, CHANNELS.index(f"I_upper_{axis}")] - coefficients[low, CHANNELS.index(f"I_lower_{axis}")])
+            nominal = model(frequency[low])[:, axes.index(axis)]
+            compliance.append(np.abs(v / u) / np.abs(nominal))
+            amplifier.append(np.abs(coil / u))
+        names = ", ".join(present)
+        ratio = float(np.median(np.concatenate(compliance)))
+        if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
+            _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
+                    f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
+        rows.append({"check": "compliance", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+        ratio = float(np.median(np.concatenate(amplifier)))
+        if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
+            _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
+                    "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
+        rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+    return rows
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """One cell far from its neighbours: excited axis, step, channel, frequency, and its score in noise units."""
+
+    axis: str
+    step: int
+    channel: str
+    frequency_hz: float
+    score: float
+    value: complex
+
+
+def _scores(frequency, response, noise):
+    """Interpolation residuals of one channel along its steps and their scores (residual over its local scale)."""
+    n = response.size
+    residual = np.zeros(n, dtype=complex)
+    if n >= 3:
+        weight = (frequency[2:] - frequency[1:-1]) / (frequency[2:] - frequency[:-2])
+        residual[1:-1] = response[1:-1] - (weight * response[:-2] + (1 - weight) * response[2:])
+        residual[0] = response[0] - (2 * response[1] - response[2])
+        residual[-1] = response[-1] - (2 * response[-2] - response[-3])
+    size = np.abs(residual)
+    local = np.empty(n)
+    for k in range(n):
+        others = np.concatenate([size[max(0, k - _WINDOW - 1) : max(0, k - 1)], size[k + 2 : k + _WINDOW + 2]])
+        local[k] = 1.4826 * np.median(others) if others.size else 0.0
+    # the residual of a point carries its own noise and half of each neighbour's (interpolation)
+    scale = np.maximum(np.sqrt(1.5) * noise, local)
+    scale = np.maximum(scale, 1e-12 * np.median(np.abs(response)) + np.finfo(float).tiny)
+    return size, size / scale
+
+
+def find_outliers(arrays, steps, threshold):
+    """Cells far from their neighbours, alone at their step.
+
+    Parameters
+    ----------
+    arrays : dict
+        `ambid.frf.log_arrays`: per excited axis (frequency, coefficients (n, 20), noise (n, 20)).
+    steps : dict
+        Per excited axis, (step numbers, excitation amplitude [A]) of the rows of ``arrays``.
+    threshold : float
+        Score (residual over the larger of the noise and the neighbours' local scatter) above which a
+        cell is an outlier.
+
+    Returns
+    -------
+    list of Outlier
+        Largest score first.
+
+    Notes
+    -----
+    A cell counts when its score exceeds ``threshold``, its residual is the
+    largest of its own and its two neighbours' (the neighbours' residuals carry
+    half of it, by the interpolation), and no other channel of its step scores
+    above a tenth of the threshold (a resonance narrower than the grid moves two
+    channels or more together; a typo moves one).
+    """
+    found = []
+    for axis, (frequency, coefficients, noise) in arrays.items():
+        numbers, amplitude = steps[axis]
+        response = coefficients / amplitude[:, None]
+        sigma = noise / amplitude[:, None]
+        sizes, scores = np.zeros(response.shape), np.zeros(response.shape)
+        for j in range(len(CHANNELS)):
+            sizes[:, j], scores[:, j] = _scores(frequency, response[:, j], sigma[:, j])
+        crowded = np.count_nonzero(scores > 0.1 * threshold, axis=1) >= _COHERENT
+        for k, j in zip(*np.nonzero(scores > threshold)):
+            if crowded[k] or sizes[k, j] < np.max(sizes[max(k - 1, 0) : k + 2, j]):
+                continue
+            found.append(Outlier(axis, int(numbers[k]), CHANNELS[j], float(frequency[k]), float(scores[k, j]),
+                                 complex(coefficients[k, j])))
+    return sorted(found, key=lambda o: -o.score)
+
+
+def outlier_text(outlier, frame, source, source_lines=None, original=None):
+    """Where an outlier is (the ``.m`` file:line, or the log and its rows) and what it is, for a message."""
+    distance = f"at {outlier.frequency_hz:.6g} Hz departs from its neighbours by {outlier.score:.3g} times the noise"
+    lines = (source_lines or {}).get(outlier.axis)
+    if original and lines is not None and outlier.step < len(lines):
+        index = [name for name, _ in _LAYOUT].index(outlier.channel)
+        column = 3 + index
+        line = lines[outlier.step]
+        line = line[column - 1] if isinstance(line, list) else line
+        value = outlier.value * _LAYOUT[index][1]  # in the file's unit (um for positions)
+        return (f"{original}:{line}", f"{variable_name(outlier.axis)} row {outlier.step + 1}, column {column} "
+                                      f"({THESIS_COLUMNS[column - 1]}) = {value:.6g} {distance}")
+    what = f"channel {outlier.channel} = {outlier.value:.6g} {distance}"
+    mask = ((frame["excited_axis"] == outlier.axis) & (frame["step"] == outlier.step)).to_numpy()
+    row = np.flatnonzero(mask & (frame["channel"] == outlier.channel).to_numpy())
+    return source, f"{_where(frame, mask)}, row {int(row[0])} ({outlier.channel}): {what}"
+
+
+def exclude_outliers(frame, outliers, estimator):
+    """The log without the steps of ``outliers``; for the MIMO estimate a radial step goes on every radial axis.
+
+    The four radial runs share one frequency grid, and ``P = V U^-1`` needs all four at a frequency.
+    """
+    frequency = frame["frequency_hz"].to_numpy()
+    drop = np.zeros(len(frame), dtype=bool)
+    for outlier in outliers:
+        if estimator == "mimo" and outlier.axis in RADIAL_AXES:
+            drop |= frame["excited_axis"].isin(RADIAL_AXES).to_numpy() & (np.abs(frequency / outlier.frequency_hz - 1) <= 1e-6)
+        else:
+            drop |= ((frame["excited_axis"] == outlier.axis) & (frame["step"] == outlier.step)).to_numpy()
+    return frame[~drop].reset_index(drop=True)
+
+
+def check_log(frame, arrays, settings, source, source_lines=None, original=None):
+    """The model-free plausibility checks of an identification log, as the FRF stage runs them (axes, outliers).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The validated log (noise filled in where it had none).
+    arrays : dict
+        `ambid.frf.log_arrays` of ``frame``.
+    settings : dict
+        The ``frf:`` config section (`FRF_SETTINGS`).
+    source : str
+        The log file.
+    source_lines, original : optional
+        For a log converted from a thesis ``.m`` file: the line of each step (per axis) and the ``.m`` path.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The log, without excluded steps.
+    findings : list of ambid.findings.Finding
+
+    Raises
+    ------
+    LogError
+        A missing radial axis (MIMO), or an outlier when ``settings["outliers"] == "refuse"``.
+    """
+    settings = {**FRF_SETTINGS, **(settings or {})}
+    check_axes(frame, settings["estimator"], original or source)
+    steps = {}
+    for axis, group in frame.groupby("excited_axis", sort=False):
+        per_step = group.groupby("step")["amplitude_a"].first().sort_index()
+        steps[axis] = (per_step.index.to_numpy(), per_step.to_numpy())
+    outliers = find_outliers(arrays, steps, settings["outlier_threshold"])
+    if not outliers:
+        return frame, []
+    texts = [outlier_text(o, frame, source, source_lines, original) for o in outliers]
+    if settings["outliers"] != "exclude":
+        where, what = texts[0]
+        more = f" ({len(outliers) - 1} more such cell(s))" if len(outliers) > 1 else ""
+        raise LogError(where, f"{what}: a typo or a glitch{more}; correct the log, or set frf.outliers: exclude to leave "
+                              "such steps out")
+    mimo = settings["estimator"] == "mimo"
+    findings = [Finding("frf", "warning", "outlier_excluded", f"{o.axis} step {o.step} ({o.frequency_hz:.6g} Hz)",
+                        f"{where}: {what}; the step is left out of the FRF"
+                        + (" (on every radial axis, for the MIMO estimate)" if mimo and o.axis in RADIAL_AXES else ""),
+                        o.score)
+                for o, (where, what) in zip(outliers, texts)]
+    return exclude_outliers(frame, outliers, settings["estimator"]), findings
