@@ -50,6 +50,8 @@ rule acquire_multisine:
         "logs/{machine}/acquire_multisine_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine", "rig")) or "no_rig_runs",
+    conda:
+        "../workflow/envs/ambid.yaml"
     threads: 1
     resources:
         mem_mb=2000,
@@ -62,6 +64,8 @@ rule acquire_multisine:
         calibration=config["calibration"],
         seed=run_seed,
         library=LIBRARY_DIGEST,
+    message:
+        "{wildcards.machine} {wildcards.run}: multisine identification on the virtual rig (coarse pass, fit, zoom)"
     script:
         "../workflow/scripts/acquire_multisine.py"
 

@@ -332,10 +332,11 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
             sections.append(Section(f"{variant} against {run}", [
                 Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
                 Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
-                *findings(f"{compare}/findings.tsv", "What the comparison found."),
+                _findings(root, f"{compare}/findings.tsv", machine, f"the comparison of `{variant}` with run `{run}`"),
                 Text(caption("diagnosis", run=run, variant=variant)),
-                *findings(f"{diagnose}/findings.tsv", "What the diagnosis found: effects missing, parameters the data "
-                                                      "move, at a bound or undetermined, misfit no effect explains."),
+                _findings(root, f"{diagnose}/findings.tsv", machine,
+                          f"the diagnosis of `{variant}` on run `{run}` (effects missing, parameters the data move, at a "
+                          "bound or undetermined, misfit no effect explains)"),
                 Text(diagnosis),
                 Figure(root / diagnose / "figures/fingerprint.png",
                        caption("diagnose_fingerprint", run=run, variant=variant))], level=3))

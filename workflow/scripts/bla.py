@@ -8,7 +8,7 @@ from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import read_multisine_log
 from ambid.machine import ALL_AXES, RADIAL_AXES
 from ambid.plots import bla_distortion, bode_measured, save_figure
-from ambid.uff import write_uff58
+from ambid.uff import frf_channels, write_uff58
 
 log = rule_log(snakemake.log[0], "bla")
 
@@ -41,10 +41,7 @@ for _, row in levels.iterrows():
              *(f"{row[k]:.1f} dB" if np.isfinite(row[k]) else "below the noise" for k in ("odd_db", "even_db")),
              row["noise_db"])
 estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
-uff_channels = [(o, i, *channel(table, estimator, o, i)[:2]) for o in RADIAL_AXES for i in RADIAL_AXES
-                if channel(table, estimator, o, i)[0].size]
-uff_channels += [("Z", "Z", *channel(table, "siso", "Z", "Z")[:2])] if channel(table, "siso", "Z", "Z")[0].size else []
-write_uff58(snakemake.output.uff, uff_channels, description=f"ambid {machine} {run} multisine BLA ({estimator})")
+write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {machine} {run} multisine BLA ({estimator})")
 title = f"{machine} {run} (multisine BLA)"
 dpi = snakemake.params.dpi
 radial = [a for a in RADIAL_AXES if channel(table, estimator, a, a)[0].size]
