@@ -81,3 +81,16 @@ def test_file_digest_follows_content_not_time(tmp_path):
     os.utime(path, (1e9, 1e9))  # an older modification time, as cp -p / tar leave it
     assert file_digest(path) != first and len(first) == 16
     assert file_digest(tmp_path / "absent") == "missing"
+
+
+def test_project_errors_cross_process_pools():
+    """A worker's ConfigError or LogError comes back whole (benchmarks and cluster jobs pickle them)."""
+    import pickle
+
+    from ambid.errors import ConfigError, LogError
+    from ambid.mfile import MFileParseError
+
+    for error in (ConfigError("truth.effects[0]", "unknown effect", source="rig.yaml"), LogError("log.parquet", "row 3"),
+                  MFileParseError("x.m", 4, 2, "bad token")):
+        back = pickle.loads(pickle.dumps(error))
+        assert type(back) is type(error) and str(back) == str(error)

@@ -32,6 +32,9 @@ class ConfigError(AmbidError):
         where = f"{source}: " if source else ""
         super().__init__(f"{where}{key}: {message}")
 
+    def __reduce__(self):  # picklable with its arguments (errors cross process pools)
+        return (ConfigError, (self.key, self.message, self.source))
+
     def within(self, prefix=None, source=None):
         """The same error with its key nested under ``prefix`` and/or its file set."""
         key = f"{prefix}.{self.key}" if prefix and not self.key.startswith(prefix) else self.key
@@ -58,6 +61,9 @@ class LogError(AmbidError):
         self.source = source
         self.message = message
         super().__init__(f"{source}: {message}")
+
+    def __reduce__(self):  # picklable with its arguments (errors cross process pools)
+        return (type(self), (self.source, self.message))
 
 
 
