@@ -11,7 +11,7 @@ import numpy as np
 from .excitation import StepPlan, run_stepped_sine
 from .frf import frf_from_log
 from .logs import identification_frame
-from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
+from .machine import ALL_AXES, BEARINGS, RADIAL_AXES, machine_from_config
 from .plant import Plant
 from .rig import RigModel, rig_from_config
 
@@ -104,6 +104,9 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     sign = lambda: float(rng.choice([-1.0, 1.0]))  # noqa: E731
     stiffer = rng.random() < 0.3
     shift_sign = (sign(), sign())
+    sensors = [machine.bearing(name).sensor_position_m for name in BEARINGS]
+    room = min(sensors[0] if shift_sign[0] < 0 else machine.rotor.length_m - sensors[0],
+               sensors[1] if shift_sign[1] < 0 else machine.rotor.length_m - sensors[1])
     draws = {
         "amplifier_lowpass": draw("amplifier_lowpass", "cutoff_hz", 500.0, 1e6),
         "delay": draw("delay", "delay_s", 200e-6, 1e-9),
@@ -116,7 +119,8 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
                                   transform=lambda v, up=stiffer: float(np.exp(v)) if up else float(np.exp(-v))),
         "modal_damping": draw("modal_damping", "damping_ratio", 0.02, 1e-7),
         "gyroscopic": draw("gyroscopic", "speed_rpm", 40000.0, 1.0),
-        "noncollocation": draw("noncollocation", "de_offset_m", 0.04, 1e-7,
+        # at most 4 cm, and on the rotor with both sensors (the NDE shift is up to 1.5 times the DE one)
+        "noncollocation": draw("noncollocation", "de_offset_m", min(0.04, 0.6 * room), 1e-7,
                                transform=lambda v: v * shift_sign[0]),
         "foundation_mode": draw("foundation_mode", "mass_kg", 5.0, 1e5,
                                 {"frequency_hz": float(rng.uniform(100, 600)), "damping_ratio": float(rng.uniform(0.01, 0.05))}),
