@@ -314,3 +314,17 @@ def test_physics_outside_the_library_is_not_named_at_a_bound(unmodelled, suite):
     assert not joint["at_bound"].any(), joint
     assert diagnosis.verdict in ("unexplained", "missing")
     assert not diagnosis.unexplained.empty, (diagnosis.table(), diagnosis.cells_after)
+
+
+def test_correlation_time_of_white_and_smooth_residuals():
+    """White residuals carry independent information (1); an AR(1) residual with rho 0.8 carries a ninth of it."""
+    from ambid.diagnose import correlation_time
+
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal(20000) + 1j * rng.standard_normal(20000)
+    assert correlation_time(white) == pytest.approx(1.0, abs=0.05)
+    smooth = np.zeros(20000, dtype=complex)
+    for k in range(1, smooth.size):
+        smooth[k] = 0.8 * smooth[k - 1] + white[k]
+    assert correlation_time(smooth) == pytest.approx(9.0, rel=0.1)
+    assert correlation_time(np.zeros(5)) == 1.0

@@ -59,7 +59,7 @@ from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
            "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells", "plant_with_effect",
-           "plant_with_effects", "INDISTINGUISHABLE_BIC"]
+           "plant_with_effects", "correlation_time", "INDISTINGUISHABLE_BIC"]
 
 #: BIC difference below which two candidates explain the data equally well (Kass & Raftery 1995: > 10 is very strong).
 INDISTINGUISHABLE_BIC = 10.0
