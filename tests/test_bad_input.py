@@ -4,8 +4,6 @@ Each test puts one defect where a user would (a log in data/, a key in config/) 
 the working directory, as `make run` would.
 """
 
-import re
-
 import numpy as np
 import pytest
 import yaml
@@ -13,6 +11,7 @@ import yaml
 from ambid.io import write_parquet
 from ambid.logs import CHANNELS, UNITS, identification_frame
 from ambid.mfile import write_thesis_m
+from test_reproducibility import job_counts
 from test_workflow import EXAMPLE_LOG, edit_config, snakemake, workdir  # noqa: F401 (workdir is a fixture)
 
 pytestmark = pytest.mark.workflow
@@ -147,11 +146,8 @@ def test_negative_element_length_fails_before_any_job(workdir):
 
 # ------------------------------------------------------------------ issue 16: trust, or a clear error
 def dry_rules(output):
-    """The rules a dry run would run, from its Job stats table (empty when there is nothing to be done)."""
-    if "Job stats:" not in output:
-        return set()
-    table = output.split("Job stats:", 1)[1].split("total", 1)[0]
-    return set(re.findall(r"^(\w+)\s+\d+\s*$", table, re.M))
+    """The rules a dry run would run (its Job stats table)."""
+    return set(job_counts(output))
 
 
 def shipped_log_lines(workdir):
@@ -256,7 +252,6 @@ def test_case3_an_unstable_model_stops_with_its_verdict(workdir, case):
 
 def test_case4_a_log_replaced_by_an_older_file_reruns(workdir):
     import os
-    import re
     import subprocess
     import tarfile
 
@@ -418,7 +413,6 @@ def test_case4_a_machine_file_or_config_section_changed_with_an_older_time_rerun
     """Content, not time: the machine file re-runs the check against the model, the FRF after it and the fit; a fit
     setting the fit alone."""
     import os
-    import re
 
     demo20_only(workdir)
     target = "results/demo20/fit/thesis01/features.tsv"

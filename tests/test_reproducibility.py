@@ -22,7 +22,9 @@ def small_configuration(config):
 
 
 def job_counts(output):
-    """Rule -> number of jobs from the 'Job stats' table of a dry run."""
+    """Rule -> number of jobs from the 'Job stats' table of a dry run (empty when there is nothing to be done)."""
+    if "Job stats:" not in output:
+        return {}
     table = output.split("Job stats:", 1)[1].split("total", 1)[0]
     return {rule: int(count) for rule, count in re.findall(r"^(\w+)\s+(\d+)\s*$", table, re.M)}
 

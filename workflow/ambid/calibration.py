@@ -45,6 +45,7 @@ __all__ = [
     "LOG_UNITS",
     "validate_calibration_log",
     "analyse_calibration",
+    "calibrated_setpoint",
     "write_calibration_log",
     "read_calibration_log",
     "stiffness_at_magnetic_center",
@@ -379,3 +380,19 @@ def analyse_calibration(frame, method_axes, settings, source="calibration.parque
     not_converged = sorted(set(last.loc[np.abs(last["offset_m"]) >= settings.tolerance_m, "axis"]))
     return {"offsets": offsets, "pairs": pairs, "repeatability": repeatability.reset_index(), "result": result,
             "not_converged_axes": not_converged}
+
+
+def calibrated_setpoint(path, method_axes, settings):
+    """Position set points [m] on `ALL_AXES` at the magnetic center a calibration log finds (0 on axes it leaves).
+
+    Parameters
+    ----------
+    path : str or Path
+        The calibration log.
+    method_axes : sequence of 4 ActuatorAxis
+        g0, b, theta the method uses (the drawing's bearing parameters).
+    settings : CalibrationSettings
+    """
+    frame, _ = read_calibration_log(path)
+    center = analyse_calibration(frame, method_axes, settings, source=str(path))["result"].set_index("axis")
+    return np.array([center["magnetic_center_m"].get(axis, 0.0) for axis in ALL_AXES])

@@ -4,10 +4,10 @@ import time
 
 import numpy as np
 
-from ambid.calibration import analyse_calibration, calibration_settings_from_config, read_calibration_log
+from ambid.calibration import calibrated_setpoint, calibration_settings_from_config
 from ambid.io import rule_log
 from ambid.logs import multisine_frame, write_multisine_log
-from ambid.machine import ALL_AXES, machine_from_config
+from ambid.machine import machine_from_config
 from ambid.multisine import identify_multisine, multisine_settings_from_config
 from ambid.plant import Plant
 from ambid.rig import RigModel, rig_from_config
@@ -22,11 +22,8 @@ rig = rig_from_config(snakemake.params.rig_config, as_built, source=snakemake.in
 started = time.perf_counter()
 setpoint_m = None
 if "calibration_log" in snakemake.input.keys():  # the center the bench found, with the drawing's bearing parameters
-    frame, _ = read_calibration_log(snakemake.input.calibration_log)
-    center = analyse_calibration(frame, nominal.machine.radial_electromagnets,
-                                 calibration_settings_from_config(snakemake.params.calibration),
-                                 source=snakemake.input.calibration_log)["result"].set_index("axis")["magnetic_center_m"]
-    setpoint_m = np.array([center.get(axis, 0.0) for axis in ALL_AXES])
+    setpoint_m = calibrated_setpoint(snakemake.input.calibration_log, nominal.machine.radial_electromagnets,
+                                     calibration_settings_from_config(snakemake.params.calibration))
     log.info("set points at the calibrated magnetic center [um]: %s", np.array2string(setpoint_m * 1e6, precision=2))
 fit = snakemake.params.fit
 fit_options = {"modes": fit["modes"], "orders": fit["orders"], "lowpass": fit["lowpass"], "delay": fit["delay"]}
