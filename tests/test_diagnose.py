@@ -17,7 +17,7 @@ import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
 from ambid.diagnose import (Candidate, DiagnoseError, FreeParameter, candidate_space, diagnose, effect_label, joint_refit,
-                            misfit, misfit_cells)
+                            misfit, misfit_cells, plant_with_effects)
 from ambid.diagnosis_report import diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -142,6 +142,23 @@ def test_joint_refit_keeps_what_the_data_do_not_determine(demo):
     assert abs(np.log(row["value"] / 0.01)) < 2 * row["relative_std"]
 
 
+def test_joint_refit_of_an_update_moves_along_what_the_data_determine(demo):
+    # thesis ch. 5.3: an update's per-element moduli of elements 5-8 are determined in combinations, not one by one; the
+    # truth has the group at 0.6, the variant each element at 1. The refit follows the combinations the data determine
+    # (found afresh at each outer step) and gets near the noise (the full-space refit this replaced stopped at
+    # chi2/pt 1.7e6); a modulus that ran to its bound is never called determined. Known, open: it stops in a local
+    # minimum at chi2/pt 1.28 (one element stiff at its bound, the others soft), not at the truth's 1.0.
+    measured = synthetic_measurement(demo, [effect("element_stiffness", tag="design", scale=0.6)])
+    model = demo.with_effects((effect("element_stiffness", tag="design", scale=(1.0, 1.0, 1.0, 1.0)),))
+    before = misfit(measured, model_response(Plant(model), measured))[0]
+    joint = joint_refit(model, measured)
+    points = sum(v[1].size for v in measured.values())
+    assert before > 100 * points
+    assert joint.chi2 < 1.3 * points
+    table = joint.table
+    assert len(table) == 4 and not (table["at_bound"] & table["determined"]).any(), table
+
+
 def test_config_lines_round_trip_exactly(demo):
     fitted = effect("foundation_mode", mass_kg=12.345678901234, frequency_hz=345.6789012345)
     lines = effects_config_lines([fitted])
@@ -242,6 +259,23 @@ def named_first(diagnosis, draws, names):
     hidden = {effect_label(effect_from_config(hidden_entry(draws, n), n)) for n in names}
     named = {f.candidate.label for f in diagnosis.sequence} | {label for f in diagnosis.sequence for label in f.indistinguishable}
     return hidden <= named
+
+
+@pytest.mark.parametrize("machine", ["hs_eden_like", "demo20"])
+def test_drawn_truths_are_commissioned_machines(machine):
+    """Every drawn hidden effect leaves a machine that levitates outside ISO 14839-3 zone D, judged by the model and
+    by the rig (seed 2027 drew a 707 Hz amplifier that made demo20's rig unstable before the draws were limited)."""
+    from ambid.loop import stability_summary
+    from ambid.rig import RigModel
+
+    machine_config = small_grid(machine)
+    draws = hidden_effect_draws(machine_config, seed=2027)
+    plant = Plant(machine_from_config(machine_config))
+    for name in draws["signature"]:
+        effect = effect_from_config(hidden_entry(draws, name), name)
+        rows = stability_summary(plant_with_effects(plant, [effect]))
+        assert all(row["stable"] and row["iso_14839_zone"] != "D" for row in rows), (name, rows)
+        assert RigModel(hidden_effect_rig(machine_config, [hidden_entry(draws, name)])).closed_loop_spectral_radius() < 1.0
 
 
 @pytest.fixture(scope="module")

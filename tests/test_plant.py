@@ -164,6 +164,19 @@ class TestClosedLoop:
         rows = stability_summary(Plant(replace(hs_machine, radial_controllers=controllers)))
         assert not any(r["stable"] for r in rows[:4])  # one coupled radial loop
 
+    @pytest.mark.parametrize("name, parameters", [("amplifier_lowpass", {"cutoff_hz": 300.0}),
+                                                  ("delay", {"delay_s": 250e-6})])
+    def test_added_signal_effects_enter_the_closed_loop(self, hs_machine, name, parameters):
+        """A plant given an effect by `Plant.with_signal_effects` (what the diagnosis tries) has the closed loop of the
+        machine built with that effect: a 300 Hz amplifier or a 250 us delay destabilizes hs_eden_like in both."""
+        added = Plant(hs_machine).with_signal_effects([effect_from_config({"name": name, "parameters": parameters}, "t")])
+        built = Plant(with_effect(hs_machine, name, **parameters))
+        radius = built.closed_loop_poles().spectral_radius
+        assert radius > 1.0
+        assert added.closed_loop_poles().spectral_radius == pytest.approx(radius, rel=1e-9)
+        assert added.axial_closed_loop_poles().spectral_radius == pytest.approx(
+            built.axial_closed_loop_poles().spectral_radius, rel=1e-9)
+
     def test_per_axis_controller_override(self, hs_config):
         config = {**hs_config, "controller": {**hs_config["controller"], "per_axis": {"NX": {"derivative_gain_a_s_per_m": 20.0}}}}
         machine = machine_from_config(config)

@@ -58,7 +58,7 @@ from .machine import ALL_AXES
 from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
-           "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells", "plant_with_effect",
+           "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells",
            "plant_with_effects", "correlation_time", "INDISTINGUISHABLE_BIC"]
 
 #: BIC difference below which two candidates explain the data equally well (Kass & Raftery 1995: > 10 is very strong).
@@ -274,23 +274,19 @@ def misfit_cells(measured, predicted, limit=1.5):
 
 
 # ------------------------------------------------------------------------------------------ evaluation
-def plant_with_effect(plant, effect):
-    """The plant with one more effect: signal effects and speed reuse the modal model, structure effects rebuild it."""
-    if effect is None:
-        return plant
-    if effect.name == "gyroscopic":
-        return plant.at_speed(effect.speed_rpm * np.pi / 30)
-    if effect.location == "structure":
-        return plant.with_structure_effect(effect)
-    return plant.with_signal_effects([effect])
-
-
 def plant_with_effects(plant, effects):
-    """The plant with several more effects, structure first (signal effects share the last structure)."""
-    ordered = sorted(effects, key=lambda e: e.location != "structure")
-    for effect in ordered:
-        plant = plant_with_effect(plant, effect)
-    return plant
+    """The plant with more effects: the structure ones in one rebuild of the modal model, then speed and signal effects.
+
+    A speed (``gyroscopic``) and the signal effects reuse the modal model (`ambid.plant.Plant.at_speed`,
+    `~ambid.plant.Plant.with_signal_effects`).
+    """
+    effects = [e for e in effects if e is not None]
+    plant = plant.with_structure_effects([e for e in effects if e.location == "structure" and e.name != "gyroscopic"])
+    for effect in effects:
+        if effect.name == "gyroscopic":
+            plant = plant.at_speed(effect.speed_rpm * np.pi / 30)
+    signal = [e for e in effects if e.location != "structure"]
+    return plant.with_signal_effects(signal) if signal else plant
 
 
 class _Evaluator:
@@ -569,6 +565,22 @@ def _with_values(effect, parameters, values):
     return type(effect)(**new)
 
 
+def _forward_jacobian(fun, x, at_x, columns, lower, upper, step=1e-4):
+    """Forward-difference Jacobian of ``fun`` at ``x`` (where it is ``at_x``) for the ``columns`` of ``x``.
+
+    Steps of ``step max(1, |x|)`` in search coordinates, taken backwards where a bound is nearer.
+    """
+    jacobian = np.empty((at_x.size, len(columns)))
+    for j, c in enumerate(columns):
+        h = step * max(1.0, abs(x[c]))
+        if x[c] + h > upper[c]:
+            h = -h
+        shifted = x.copy()
+        shifted[c] = x[c] + h
+        jacobian[:, j] = (fun(shifted) - at_x) / h
+    return jacobian
+
+
 def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True, initial=None):
     """Refit the chosen effects and the variant's own effects together.
 
@@ -585,7 +597,10 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
         coordinates), which keeps what the data do not determine where the
         variant has it; ``determined_std``; ``max_evaluations``.
     refit_variant : bool
-        Free the variant's own effects (amplifier bandwidths, the update's moduli, ...).
+        Free the variant's own effects (amplifier bandwidths, the update's moduli, ...): along the directions
+        of their parameter space the data determine (right singular vectors of their Jacobian with a standard
+        deviation at the floor below ``determined_std``, found again after each of up to four outer steps);
+        the other directions keep the variant's values.
     initial : JointFit, optional
         An earlier refit of the same variant whose values start this one (the
         prior stays centred on the variant's configured values).
@@ -632,21 +647,60 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             k += len(ps)
         return out
 
-    def residual(x):
+    def data(x):
         try:
             r = evaluator.residual(build(x))
         except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
             r = np.full(points, 1e3)
-        return np.concatenate([r.real, r.imag, prior_scale * (x - x0)[prior]])
+        return np.concatenate([r.real, r.imag])
 
-    solution = scipy.optimize.least_squares(residual, begin, bounds=(lower, upper), x_scale=np.minimum(span / 10, 1.0),
-                                            diff_step=1e-4, method="trf", max_nfev=3 * settings.max_evaluations,
-                                            xtol=1e-8, ftol=1e-10)
-    x = solution.x
+    def residual(x):
+        return np.concatenate([data(x), prior_scale * (x - x0)[prior]])
+
+    # the variant's own parameters move only along the directions the data determine (truncated SVD, as model updating
+    # regularizes), found afresh at each outer step since the problem is nonlinear: an update's fourteen moduli of which
+    # the data fix a few combinations keep the rest as the variant has them, and each step costs a few evaluations per
+    # iteration instead of one per modulus
+    started = evaluator.evaluations
+    own_columns, new_columns = np.flatnonzero(prior), np.flatnonzero(~prior)
+    lower_inside, upper_inside = lower + 1e-9 * span, upper - 1e-9 * span
+    x = begin
+    objective = float(np.sum(residual(x) ** 2))
+    for _ in range(4):
+        basis = np.zeros((own_columns.size, 0))
+        if own_columns.size:
+            at_x = data(x)
+            _, singular, directions = np.linalg.svd(_forward_jacobian(data, x, at_x, own_columns, lower, upper),
+                                                    full_matrices=False)
+            # the standard deviation along each right singular direction at the floor is sqrt(0.5) / s (`_covariance`
+            # without prior or deflation: the misfit before the fit is the model's error, not the data's resolution)
+            basis = directions[np.sqrt(0.5) < settings.determined_std * singular].T
+        if basis.shape[1] + new_columns.size == 0:
+            break
+
+        def expand(z, origin=x, basis=basis):
+            out = origin.copy()
+            out[own_columns] = np.clip(origin[own_columns] + basis @ z[: basis.shape[1]], lower_inside[own_columns],
+                                       upper_inside[own_columns])
+            out[new_columns] = z[basis.shape[1]:]
+            return out
+
+        solution = scipy.optimize.least_squares(
+            lambda z: residual(expand(z)), np.concatenate([np.zeros(basis.shape[1]), x[new_columns]]),
+            bounds=(np.concatenate([np.full(basis.shape[1], -np.inf), lower[new_columns]]),
+                    np.concatenate([np.full(basis.shape[1], np.inf), upper[new_columns]])),
+            x_scale=np.concatenate([np.ones(basis.shape[1]), np.minimum(span[new_columns] / 10, 1.0)]),
+            diff_step=1e-4, method="trf", max_nfev=settings.max_evaluations, xtol=1e-8, ftol=1e-10)
+        improvement = objective - 2 * solution.cost
+        x, objective = expand(solution.x), 2 * solution.cost
+        if not own_columns.size or improvement < 1e-3 * max(objective, 1.0):
+            break
     effects = build(x)
     fitted = evaluator.residual(effects)
     chi2 = float(np.vdot(fitted, fitted).real)
-    covariance = _covariance(solution.jac[: 2 * points], chi2, points, len(parameters),
+    at_solution = np.concatenate([fitted.real, fitted.imag])
+    jacobian = _forward_jacobian(data, x, at_solution, np.arange(len(parameters)), lower, upper)
+    covariance = _covariance(jacobian, chi2, points, len(parameters),
                              prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     scale = np.where(std_search > 0, std_search, 1.0)
@@ -666,7 +720,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     table = pd.DataFrame(rows, columns=list(JOINT_COLUMNS))
     correlation = pd.DataFrame(covariance / np.outer(scale, scale), index=table["parameter"], columns=table["parameter"])
     refitted = replace(machine, effects=kept + tuple(effects))
-    return JointFit(table, correlation, chi2, fitted, tuple(effects[len(own):]), refitted, solution.nfev)
+    return JointFit(table, correlation, chi2, fitted, tuple(effects[len(own):]), refitted,
+                    evaluator.evaluations - started)
 
 
 # ------------------------------------------------------------------------------------------ the diagnosis

@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from .compare import channel_errors, model_response, summarize
-from .diagnose import INDISTINGUISHABLE_BIC, effect_label, plant_with_effect
+from .diagnose import INDISTINGUISHABLE_BIC, effect_label, plant_with_effects
 from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
@@ -108,7 +108,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
     errors = channel_errors(measured, model)
     before = summarize(errors, bands_hz)
     table = diagnosis.table()
-    helps = [where_it_helps(before, summarize(channel_errors(measured, model_response(plant_with_effect(plant, f.effect), measured)),
+    helps = [where_it_helps(before, summarize(channel_errors(measured, model_response(plant_with_effects(plant, [f.effect]), measured)),
                                               bands_hz)) for f in diagnosis.ranked]
     table["helps_channels"] = [h["channels"] for h in helps]
     table["helps_band"] = [h["band"] for h in helps]

@@ -8,6 +8,7 @@ model side receives the FRF table.
 
 import numpy as np
 
+from .errors import ModelError
 from .excitation import StepPlan, run_stepped_sine
 from .frf import frf_from_log
 from .logs import identification_frame
@@ -65,6 +66,38 @@ def _weak_end(machine, build, strong, weak, target=3.0):
     return float(np.exp(lo))
 
 
+def _admissible(plant):
+    """Whether a truth could be a commissioned machine: its closed loop stable and no axis in ISO 14839-3 zone D."""
+    from .loop import stability_summary
+
+    try:
+        rows = stability_summary(plant)
+    except ModelError:
+        return False
+    return all(row["stable"] and row["iso_14839_zone"] != "D" for row in rows)
+
+
+def _admissible_end(machine, build, strong, end):
+    """The strongest strength between ``strong`` and ``end`` (log scale) at which the machine stays `_admissible`.
+
+    ``end`` (the weak end) is taken as admissible; a tenth of the log distance to it is kept as margin from
+    the boundary, so a draw does not sit on the edge of instability.
+    """
+    from .diagnose import plant_with_effects
+
+    plant = Plant(machine)
+    if _admissible(plant_with_effects(plant, [build(strong)])):
+        return strong
+    lo, hi = np.log(end), np.log(strong)  # admissible, not admissible
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        if _admissible(plant_with_effects(plant, [build(np.exp(mid))])):
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(lo + 0.1 * (np.log(end) - lo)))
+
+
 def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     """One hidden effect per library entry, its strength drawn from physical ranges down to a signature of ``target``.
 
@@ -77,7 +110,10 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     from 5 kg, the bearings' force constants and bias currents off by up to 10 %
     (each axis its own share of the drawn error).  Each strength is drawn log-uniformly between its strong end and
     the weak end where `effect_signature` falls to ``target`` times the floor,
-    so the draws include effects barely above what the data resolve.
+    so the draws include effects barely above what the data resolve.  The strong
+    end is pulled back where it would leave no commissioned machine (a closed
+    loop unstable or in ISO 14839-3 zone D, `_admissible_end`): a machine that
+    cannot levitate is not identified.
 
     Returns
     -------
@@ -98,6 +134,7 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
         fixed = fixed or {}
         build = build or (lambda v: effect(name, {**fixed, key: transform(v)}))
         end = _weak_end(machine, build, strong, weak, target)
+        strong = _admissible_end(machine, build, strong, end)
         value = float(np.exp(rng.uniform(*sorted((np.log(strong), np.log(end))))))
         return value if transform is None else {**fixed, key: transform(value)}
 

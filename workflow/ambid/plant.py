@@ -129,17 +129,22 @@ class Plant:
         plant.output_effects = list(self.output_effects) + outputs
         return plant
 
-    def with_structure_effect(self, effect):
-        """A new plant with one more structure effect, applied on top of this plant's structure.
+    def with_structure_effects(self, effects):
+        """A new plant with more structure ``effects``, applied together on top of this plant's structure.
 
-        The effects already applied are not applied again, and a rotor the new
-        effect leaves unchanged (damping, sensors, housings) keeps its modes.
+        One rebuild of the modal model however many effects are added (the
+        diagnosis' joint refit changes every element group of an update at once);
+        the effects already applied are not applied again.
         """
-        if effect.location != "structure":
-            raise ModelError(f"{effect.name} is not a structure effect: use with_signal_effects")
-        applied = replace(self.machine, effects=(effect, *self.input_effects, *self.output_effects))
+        effects = tuple(effects)
+        wrong = [e.name for e in effects if e.location != "structure"]
+        if wrong:
+            raise ModelError(f"{wrong[0]} is not a structure effect: use with_signal_effects")
+        if not effects:
+            return self
+        applied = replace(self.machine, effects=(*effects, *self.input_effects, *self.output_effects))
         plant = Plant(applied, static_correction=self.static_correction)
-        plant.machine = replace(plant.machine, effects=self.machine.effects + (effect,))
+        plant.machine = replace(plant.machine, effects=self.machine.effects + effects)
         return plant
 
     def at_speed(self, speed_rad_s):
@@ -390,14 +395,16 @@ class Plant:
         whole plus fractional sample delays: the system the virtual rig simulates.
         """
         machine = self.machine
+        # the plant's own signal effects: `with_signal_effects` adds to them, not to machine.effects
+        effects = tuple(self.input_effects) + tuple(self.output_effects)
         if axial:
             ki, kx = self.axial_stiffness
             return sampled_system(np.array([[self.rotor.mass_kg]]), np.zeros((1, 1)), np.zeros((1, 1)), np.ones((1, 1)),
-                                  np.ones((1, 1)), [ki], [kx], machine.effects, [AXIAL_AXIS], machine.sample_time_s)
+                                  np.ones((1, 1)), [ki], [kx], effects, [AXIAL_AXIS], machine.sample_time_s)
         radial = self.radial
         return sampled_system(radial.mass, radial.damping + radial.speed_rad_s * radial.gyroscopic, self.free_stiffness,
                               self.actuator_shape, radial.output_matrix, self.current_stiffness, self.position_stiffness,
-                              machine.effects, RADIAL_AXES, machine.sample_time_s)
+                              effects, RADIAL_AXES, machine.sample_time_s)
 
     def closed_loop_poles(self):
         """Poles of the sampled-data closed loop of the radial axes with every effect of the model.
