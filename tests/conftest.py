@@ -45,3 +45,13 @@ def hs_plant(hs_machine):
 @pytest.fixture(scope="session")
 def demo_plant(demo_machine):
     return Plant(demo_machine)
+
+
+def pytest_collection_modifyitems(items):
+    """Run the long tests first: the tests sharing an expensive fixture on one worker (``xdist_group``), then those
+    that run Snakemake, then the rest.  Under pytest-xdist (``make test``) the short tests then fill the other
+    worker's time instead of one long test finishing alone at the end; run serially, only the order changes."""
+    def rank(item):
+        return (item.get_closest_marker("xdist_group") is None, item.get_closest_marker("workflow") is None)
+
+    items.sort(key=rank)
