@@ -86,7 +86,6 @@ def hs_calibration(hs_config):
     return rig_model, axes, settings, log
 
 
-@pytest.mark.xdist_group("hs_calibration")  # one calibration run shared, on one worker
 class TestProcedure:
     def test_issue_targets_on_the_default_rig(self, hs_calibration):
         rig_model, axes, settings, log = hs_calibration

@@ -8,9 +8,7 @@ import yaml
 
 from test_workflow import ROOT, demo20_on_its_rig, edit_config, snakemake
 
-# one worker runs this module under pytest-xdist (make test: --dist loadgroup), so the two workflow runs are made
-# once and not again on the other worker
-pytestmark = [pytest.mark.workflow, pytest.mark.xdist_group("two_runs")]
+pytestmark = pytest.mark.workflow
 
 ROOT_FILES = ("results", "data")
 
