@@ -20,13 +20,18 @@ $(STAMP): requirements.txt pyproject.toml
 	touch $@
 
 run: $(STAMP)
+	$(BIN)/python -m compileall -q workflow/ambid
 	$(BIN)/snakemake --cores $(CORES)
 	@echo "Reports (one self-contained HTML page per machine; tables and figures under results/<machine>/):"
 	@for machine in $$($(BIN)/python -c "import yaml; print(*yaml.safe_load(open('config/config.yaml'))['machines'])"); do \
 		echo "  $(CURDIR)/results/$$machine/report.html"; done
 
+# The tests on every core (pytest-xdist; tests that share one expensive fixture run on one worker, see
+# tests/conftest.py), one BLAS thread per worker so the workers do not fight over the cores.  compileall: the
+# library's bytecode is written once here, so every Snakemake job reads it even where PYTHONDONTWRITEBYTECODE is set.
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m compileall -q workflow/ambid
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n $(CORES) --dist loadgroup
 
 lint: $(STAMP)
 	$(BIN)/snakemake --lint

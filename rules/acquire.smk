@@ -17,6 +17,7 @@ rule acquire_identification:
         "logs/{machine}/acquire_identification_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
+    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -50,6 +51,7 @@ rule acquire_multisine:
         "logs/{machine}/acquire_multisine_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine", "rig")) or "no_rig_runs",
+    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -81,6 +83,7 @@ rule acquire_calibration:
         "logs/{machine}/acquire_calibration_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
+    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

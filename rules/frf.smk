@@ -12,6 +12,7 @@ rule plausibility:
         table="results/{machine}/frf/{run}/plausibility.tsv",
     log:
         "logs/{machine}/plausibility_{run}.log",
+    priority: 1  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -47,6 +48,7 @@ rule frf:
         "logs/{machine}/frf_{run}.log",
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("stepped_sine")) or "no_stepped_sine_runs",
+    priority: 1  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -80,6 +82,7 @@ rule bla:
         "logs/{machine}/bla_{run}.log",
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine")) or "no_multisine_runs",
+    priority: 1  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -134,6 +137,7 @@ rule import_log:
         "logs/{machine}/import_log_{run}.log",
     wildcard_constraints:
         run="|".join(imported_runs()) or "no_imported_runs",
+    priority: 1  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

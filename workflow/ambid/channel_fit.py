@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.optimize
-import scipy.signal
 
 from .errors import AmbidError, ConfigError
 from .findings import Finding
@@ -133,6 +132,7 @@ class ChannelModel:
 
     def to_scipy(self):
         """The rational part as `scipy.signal.ZerosPolesGain` (the delay is not rational: see ``delay_s``)."""
+        import scipy.signal  # here, not at the top: importing it costs ~1.5 s of CPU (scipy.stats) in every rule that never calls it
         zeros, poles = self.zeros, self.poles
         # ZerosPolesGain's gain multiplies monic factors; absorb the non-monic ones
         gain = self.gain * (self.residual_s2 if self.residual_s2 != 0 else 1.0)

@@ -20,7 +20,6 @@ from functools import cached_property
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 
 from .effects import split_effects
 from .errors import ModelError
@@ -292,11 +291,13 @@ class Plant:
         Input- and output-side effects are not included (a delay has no state space);
         multiply by their `Effect.response` in the frequency domain.
         """
+        import scipy.signal  # here, not at the top: importing it costs ~1.5 s of CPU (scipy.stats) in every rule that never calls it
         a, b, c = self.radial.state_space()
         return scipy.signal.StateSpace(a, b, c, np.zeros((c.shape[0], b.shape[1])))
 
     def channel_zpk(self, output_axis, input_axis):
         """One SISO channel as ``scipy.signal.ZerosPolesGain`` (its minimal form, see `zeros`)."""
+        import scipy.signal  # here, not at the top: importing it costs ~1.5 s of CPU (scipy.stats) in every rule that never calls it
         poles, residues = self.channel_residues(output_axis, input_axis)
         zeros = self.zeros(output_axis, input_axis)
         s = 1j * (1.0 + np.max(np.abs(poles)))  # a point away from poles and zeros fixes the gain
