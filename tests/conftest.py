@@ -47,7 +47,6 @@ def demo_plant(demo_machine):
     return Plant(demo_machine)
 
 
-
 #: Tests that share one expensive module fixture, by node-id prefix: each group runs on one pytest-xdist worker
 #: (``make test``), so the fixture is made once.  (xdist's own ``--dist loadgroup`` with ``xdist_group`` marks
 #: silently stops grouping on pytest 9.2, pytest-dev/pytest-xdist#1386; this does the same by node id.)
