@@ -105,7 +105,7 @@ def markdown_html(text):
                 i += 1
             head = "".join(f"<th>{_inline(c)}</th>" for c in rows[0])
             body = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in rows[1:])
-            out.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
+            out.append(f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>')
         elif line.startswith("- "):
             items = []
             while i < len(lines) and lines[i].startswith("- "):
@@ -122,42 +122,103 @@ def markdown_html(text):
 
 
 # ------------------------------------------------------------------------------ HTML
+# A contents sidebar that stays on screen (position: sticky), collapsible sections (<details>), tables that scroll
+# inside themselves: pure CSS, no script, no external resource.
 _STYLE = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
-h1 { border-bottom: 2px solid #444; } h2 { border-bottom: 1px solid #aaa; margin-top: 2em; }
-table { border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.85em; }
+* { box-sizing: border-box; }
+body { font-family: system-ui, sans-serif; margin: 0; color: #222; }
+.page { display: grid; grid-template-columns: 16rem minmax(0, 1fr); gap: 1.5em; max-width: 1500px; margin: 0 auto; }
+nav.contents { position: sticky; top: 0; align-self: start; max-height: 100vh; overflow-y: auto; padding: 1em 0.5em 1em 1em;
+  font-size: 0.85em; border-right: 1px solid #ddd; }
+nav.contents ul { list-style: none; padding-left: 0; margin: 0.2em 0; } nav.contents ul ul { padding-left: 1em; }
+nav.contents li { margin: 0.15em 0; } nav.contents a { text-decoration: none; color: #0645ad; }
+main { min-width: 0; padding: 0 1em 3em 0; max-width: 1150px; }
+@media (max-width: 900px) { .page { grid-template-columns: minmax(0, 1fr); } nav.contents { position: static;
+  max-height: none; border-right: none; } }
+h1 { border-bottom: 2px solid #444; } summary h2, summary h3 { display: inline; }
+details.level2 > summary { border-bottom: 1px solid #aaa; margin-top: 1.5em; padding-bottom: 0.2em; cursor: pointer; }
+details.level3 { margin-left: 0.5em; } details.level3 > summary { margin-top: 1em; cursor: pointer; }
+.scroll { max-width: 100%; overflow-x: auto; margin: 0.5em 0 1em; }
+table { border-collapse: collapse; font-size: 0.85em; }
 th, td { border: 1px solid #ccc; padding: 2px 6px; text-align: right; } th { background: #eee; }
 td:first-child, th:first-child { text-align: left; }
-figure { margin: 1em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figure { margin: 1em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption, .caption { font-size: 0.9em; color: #444; }
-code { background: #f4f4f4; padding: 0 2px; } pre { background: #f4f4f4; padding: 0.5em; overflow-x: auto; }
-nav ul { columns: 2; } .source { color: #888; font-size: 0.8em; }
+code { background: #f4f4f4; padding: 0 2px; overflow-wrap: anywhere; } pre { background: #f4f4f4; padding: 0.5em; overflow-x: auto; }
+.source { color: #888; font-size: 0.8em; } .warning { border-left: 4px solid #c60; padding-left: 0.6em; }
 """
+
+
+def _alt_text(block):
+    """Alt text of a figure: the first sentence of its caption without markup, else the file name."""
+    text = re.sub(r"[`*]", "", block.caption or "").strip()
+    first = re.split(r"(?<=[.:;])\s", text, maxsplit=1)[0].strip() if text else ""
+    return first or Path(block.path).stem.replace("_", " ")
+
+
+def _scroll(table_html):
+    """A table in a container that scrolls sideways by itself, so the page never does."""
+    return f'<div class="scroll">{table_html}</div>'
 
 
 def _block_html(block):
     if isinstance(block, Figure):
         data = base64.b64encode(Path(block.path).read_bytes()).decode("ascii")
-        return (f'<figure><img alt="{html.escape(Path(block.path).name)}" src="data:image/png;base64,{data}">'
+        return (f'<figure><img alt="{html.escape(_alt_text(block))}" src="data:image/png;base64,{data}">'
                 f"<figcaption>{markdown_html(block.caption)}</figcaption></figure>")
     if isinstance(block, Table):
-        table = block.frame.to_html(index=False, na_rep="", float_format=lambda x: f"{x:.4g}", border=0)
+        table = block.frame.to_html(index=False, na_rep="", float_format=_number, border=0)
         source = f'<div class="source">{html.escape(block.source)}</div>' if block.source else ""
-        return f'<div class="caption">{markdown_html(block.caption)}</div>{table}{source}'
+        return f'<div class="caption">{markdown_html(block.caption)}</div>{_scroll(table)}{source}'
     return markdown_html(block.markdown)
 
 
-def render_report(title, sections, introduction=""):
-    """The report as one HTML document (figures embedded, no external resource)."""
-    contents = "".join(f'<li><a href="#{s.anchor}">{html.escape(s.title)}</a></li>' for s in sections if s.level == 2)
-    body = []
+def _number(x):
+    return f"{x:.4g}"
+
+
+def _contents(sections):
+    """The sidebar: every stage, and under it its runs and variants."""
+    items, open_item = [], None
     for section in sections:
-        body.append(f'<h{section.level} id="{section.anchor}">{html.escape(section.title)}</h{section.level}>')
-        body += [_block_html(block) for block in section.blocks]
+        link = f'<a href="#{section.anchor}">{html.escape(section.title)}</a>'
+        if section.level == 2 or open_item is None:
+            open_item = [link, []]
+            items.append(open_item)
+        else:
+            open_item[1].append(f"<li>{link}</li>")
+    return "<ul>" + "".join(f"<li>{link}" + (f"<ul>{''.join(sub)}</ul>" if sub else "") + "</li>"
+                            for link, sub in items) + "</ul>"
+
+
+def render_report(title, sections, introduction=""):
+    """The report as one HTML document (figures embedded, no external resource, no script).
+
+    A contents sidebar stays on screen and lists every section with its runs
+    and variants; every section is a ``<details>`` element (open), so it folds
+    away; every table scrolls inside its own container.
+    """
+    body, open_level2 = [], False
+    for section in sections:
+        heading = f'<h{section.level} id="{section.anchor}">{html.escape(section.title)}</h{section.level}>'
+        if section.level == 2:
+            if open_level2:
+                body.append("</details>")
+            body.append(f'<details class="level2" open><summary>{heading}</summary>')
+            open_level2 = True
+        inner = [_block_html(block) for block in section.blocks]
+        if section.level == 2:
+            body += inner
+        else:
+            body.append(f'<details class="level3" open><summary>{heading}</summary>' + "\n".join(inner) + "</details>")
+    if open_level2:
+        body.append("</details>")
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>\n"
-            f"<h1>{html.escape(title)}</h1>\n{markdown_html(introduction)}\n<nav><ul>{contents}</ul></nav>\n"
-            + "\n".join(body) + "\n</body></html>\n")
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>\n<div class=\"page\">\n"
+            f'<nav class="contents" aria-label="contents"><strong>Contents</strong>{_contents(sections)}</nav>\n'
+            f"<main>\n<h1>{html.escape(title)}</h1>\n{markdown_html(introduction)}\n"
+            + "\n".join(body) + "\n</main>\n</div>\n</body></html>\n")
 
 
 # ------------------------------------------------------------------------------ a machine's report
