@@ -369,7 +369,7 @@ DIAGNOSE_OUTPUTS = [
     "diagnosis.md",
     "figures/fingerprint.png",
 ]
-LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
+LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png", "figures/excess_maps.png"]
 
 
 UPDATE_OUTPUTS = [

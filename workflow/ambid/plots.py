@@ -388,8 +388,7 @@ def _misfit_colours():
     below = int(round(256 * share))
     colours = np.vstack([np.tile(matplotlib.colors.to_rgba("#d4ecd4"), (below, 1)),
                          plt.get_cmap("magma_r")(np.linspace(0.08, 1.0, 256 - below))])
-    cmap = matplotlib.colors.ListedColormap(colours)
-    cmap.set_bad((0, 0, 0, 0))
+    cmap = matplotlib.colors.ListedColormap(colours).with_extremes(bad=(0, 0, 0, 0))
     return cmap, matplotlib.colors.LogNorm(*MISFIT_RANGE, clip=True)
 
 

@@ -16,13 +16,15 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .errors import AmbidError
 from .findings import findings_frame, read_findings
-from .io import read_tsv
+from .io import read_parquet, read_tsv
 
-__all__ = ["Figure", "Table", "Text", "Section", "markdown_html", "render_report", "machine_report"]
+__all__ = ["Figure", "Table", "Text", "Section", "markdown_html", "render_report", "machine_report", "engineering_units",
+           "verdict_markdown", "update_caveat"]
 
 
 @dataclass
@@ -246,10 +248,97 @@ def _findings(root, path, machine, what):
                  "`failure` must not be used as it is).", f"results/{machine}/{path}")
 
 
-def _first_paragraph(markdown):
-    """The headline of a diagnosis: its first paragraph after the title."""
-    blocks = [b for b in markdown.split("\n\n") if b.strip() and not b.startswith("#")]
-    return blocks[0].strip() if blocks else ""
+def verdict_markdown(markdown):
+    """The verdict of a diagnosis (``diagnosis.md``) with its uncertainties: every block before its first subsection.
+
+    That is what is missing with the values and standard deviations of its
+    parameters, which effects the data cannot tell apart, the parameters the
+    data move, the misfit no effect explains, or that nothing is missing at
+    the floor; the advice on where to set them is left out.
+    """
+    head = markdown.split("\n## ", 1)[0]
+    blocks = [b.strip() for b in head.split("\n\n") if b.strip() and not b.lstrip().startswith("# ")]
+    return "\n\n".join(b for b in blocks if not b.startswith("Set them where"))
+
+
+# Columns in SI units shown in engineering units: suffix -> (new suffix, factor)
+_ENGINEERING = (("_n_per_m", "_n_per_um", 1e-6), ("_pa", "_gpa", 1e-9), ("_m", "_um", 1e6), ("_s", "_us", 1e6))
+
+
+def engineering_units(frame, metres=()):
+    """A table in the units an engineer reads: metres as um, seconds as us, pascal as GPa, N/m as N/um.
+
+    Columns are converted by the SI suffix of their name (``offset_m`` ->
+    ``offset_um``); ``metres`` names further columns in metres whose names
+    carry no unit (e.g. the axes ``DX``..``NY`` of a calibration table), shown
+    in um with the unit added to the name.
+    """
+    out = frame.copy()
+    renames = {}
+    for column in out.columns:
+        if not pd.api.types.is_float_dtype(out[column]):
+            continue
+        name = str(column)
+        if name in metres:
+            out[column] = out[column] * 1e6
+            renames[column] = f"{name} [um]"
+            continue
+        for suffix, new, factor in _ENGINEERING:
+            if name.endswith(suffix) and (suffix != "_s" or "delay" in name):  # a duration of minutes stays in s
+                out[column] = out[column] * factor
+                renames[column] = name[: -len(suffix)] + new
+                break
+    return out.rename(columns=renames)
+
+
+def update_caveat(undetermined, total):
+    """What an updated-model number is worth when the data leave update variables undetermined (text after it)."""
+    if total == 0 or undetermined == 0:
+        return "."
+    if undetermined == total:
+        return (f"; **none of the {total} update variables is determined by the data**, so the updated model matches "
+                "this frequency without establishing the values it changed.")
+    return f"; {undetermined} of the {total} update variables are not determined by the data."
+
+
+def _misfit_change(verdict_path):
+    """``chi2 per point X -> Y`` of a diagnosis (before its effects, after the joint refit)."""
+    if not Path(verdict_path).exists():
+        return "no verdict table"
+    row = read_tsv(verdict_path).iloc[0]
+    before, after = float(row["chi2_per_point_before"]), float(row["chi2_per_point_after"])
+    if not np.isfinite(after):
+        return f"chi2 per point {before:.4g}; 1 is the floor"
+    return f"chi2 per point {before:.4g} before, {after:.4g} after the joint refit; 1 is the floor"
+
+
+def _warnings_block(warnings):
+    """Every warning and failure of every stage, in one table at the top of the page."""
+    if not warnings:
+        return Text("Warnings of the stages: none (notes are where each result is quoted).")
+    frame = pd.DataFrame(warnings)
+    frame = frame.assign(order=frame["severity"].map({"failure": 0, "warning": 1})).sort_values(
+        "order", kind="stable").drop(columns="order")
+    return Table(frame, f"**{len(frame)} warning(s) and failure(s)** of the stages (each also where its result is "
+                        "quoted; a `failure` must not be used as it is).")
+
+
+def _fit_quality(root, machine, run):
+    """Fit quality per channel (chi2 per degree of freedom of the output-error fit) with the fitted order and delay."""
+    path = root / f"fit/{run}/models.parquet"
+    if not path.exists():
+        return Text(f"No fit models for run `{run}`.")
+    models, _ = read_parquet(path)
+    columns = [c for c in ("output", "input", "order", "cost", "delay_s", "lowpass_rad_s", "dropped") if c in models.columns]
+    frame = models[columns].drop_duplicates(["output", "input"]).rename(columns={"cost": "chi2_per_dof"})
+    if "lowpass_rad_s" in frame:
+        frame = frame.assign(lowpass_hz=frame.pop("lowpass_rad_s") / (2 * np.pi))
+    worst = frame.sort_values("chi2_per_dof", ascending=False).head(1)
+    text = ("Fit quality per channel: chi2 per degree of freedom of the output-error fit (1: the model explains the "
+            "channel to within its uncertainty)")
+    text += (f"; worst {worst['output'].iloc[0]}/{worst['input'].iloc[0]} at {worst['chi2_per_dof'].iloc[0]:.3g}."
+             if len(worst) else ".")
+    return Table(engineering_units(frame), text, f"results/{machine}/fit/{run}/models.parquet")
 
 
 def machine_report(machine, results_dir, calibration_runs=(), identification_runs=(), variants=("nominal",),
@@ -278,27 +367,41 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     """
     root, caption = Path(results_dir), _Captions(captions or {}, machine)
 
-    def table(path, text=""):
-        return Table(read_tsv(root / path), text, f"results/{machine}/{path}")
+    def table(path, text="", metres=()):
+        return Table(engineering_units(read_tsv(root / path), metres), text, f"results/{machine}/{path}")
+
+    def warnings_of(path, where):
+        """The warnings and failures of a stage's findings, for the summary (notes stay where the result is)."""
+        if not (root / path).exists():
+            return []
+        frame = findings_frame(read_findings(root / path))
+        frame = frame[frame["severity"].isin(["warning", "failure"])]
+        return [{"where": where, "severity": r.severity, "subject": r.subject, "message": r.message}
+                for r in frame.itertuples()]
+
+    warnings = []
 
     sections = []
     summary = Section("Summary")
     sections.append(summary)
+    facts, verdicts = [], []  # the summary's lines, assembled at the end: verdict first, then the figures, then facts
     for run in calibration_runs:
         base = f"calibration/{run}"
         center = read_tsv(root / base / "magnetic_center.tsv")
-        summary.blocks.append(Text(f"Magnetic center found by calibration run `{run}` [um]: " + ", ".join(
+        facts.append(Text(f"Magnetic center found by calibration run `{run}` [um]: " + ", ".join(
             f"{a} {x * 1e6:+.2f} +- {u * 1e6:.3f}" for a, x, u in
             zip(center["axis"], center["magnetic_center_m"], center["standard_uncertainty_m"])) + "."))
         blocks = [Figure(root / base / "figures/convergence.png", caption("calibration_convergence", run=run)),
-                  table(f"{base}/magnetic_center.tsv", "Magnetic center and its standard uncertainty over the repetitions [m]."),
-                  table(f"{base}/pairs.tsv", "Rotor position from each bias-current pair [m] (thesis Table 6.2)."),
-                  table(f"{base}/repeatability.tsv", "Magnetic center of each repetition [m] (thesis Table 6.3)."),
+                  table(f"{base}/magnetic_center.tsv", "Magnetic center and its standard uncertainty over the repetitions [um]."),
+                  table(f"{base}/pairs.tsv", "Rotor position from each bias-current pair [um] (thesis Table 6.2).",
+                        metres=("DX", "DY", "NX", "NY", "Z")),
+                  table(f"{base}/repeatability.tsv", "Magnetic center of each repetition [um] (thesis Table 6.3).",
+                        metres=("DX", "DY", "NX", "NY", "Z")),
                   table(f"{base}/stiffness.tsv", "Current and position stiffness at the magnetic center and at the "
                                                  "geometric center (thesis eq. 3.5-3.6).")]
         if (root / base / "sensitivity.tsv").exists():
             blocks.append(table(f"{base}/sensitivity.tsv", "The calibration run with wrong method parameters, scored "
-                                                           "against the virtual rig's truth [m] (beyond the thesis)."))
+                                                           "against the virtual rig's truth [um] (beyond the thesis)."))
         sections.append(Section(f"Calibration {run} (thesis ch. 3, 6.1)", blocks))
     if multisine_runs:
         sections.append(Section("Identification methods: stepped sine and multisine (beyond the thesis)", [
@@ -316,7 +419,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                                                    "the coarse pass (rms per line [m]) and their ratios [dB].")]))
         else:
             floors = read_tsv(root / base / "floor.tsv")
-            summary.blocks.append(Text(
+            warnings += warnings_of(f"{base}/findings.tsv", f"identification {run}")
+            facts.append(Text(
                 f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides by): "
                 + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
                             for family, part in floors.groupby("family", sort=False)) + "."))
@@ -338,9 +442,11 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
+        warnings += warnings_of(f"fit/{run}/findings.tsv", f"parametric fit {run}")
         sections.append(Section(f"Parametric fit {run} (thesis ch. 5.1)", [
             _findings(root, f"fit/{run}/findings.tsv", machine, f"the fit of run `{run}` (flagged features stay out of "
                       "the model update)"),
+            _fit_quality(root, machine, run),
             Table(features.drop(columns=["estimator"]), "Resonances (poles) and anti-resonances (zeros) of every fitted "
                   "channel with their standard uncertainties (the measured columns of thesis Table 6.4 / 5.2).",
                   f"results/{machine}/fit/{run}/features.tsv"),
@@ -349,15 +455,21 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         if updated:
             base = f"update/{run}"
             comparison = read_tsv(root / base / "comparison.tsv")
+            variables = read_tsv(root / base / "variables.tsv")
+            undetermined = int((~variables["determined"].astype(bool)).sum())
+            caveat = update_caveat(undetermined, len(variables))
             first = comparison[(comparison["quantity"] == "frequency") & (comparison["root"] == "pole")].head(1)
             for _, row in first.iterrows():
-                summary.blocks.append(Text(
-                    f"First flexible resonance in run `{run}`: measured {row['measured']:.1f} Hz, nominal model "
-                    f"{row['original']:.1f} Hz ({row['original_error_pct']:.1f} % off), updated model "
-                    f"{row['updated']:.1f} Hz ({row['error_pct']:.2f} % off)."))
+                facts.append(Text(
+                    f"First flexible resonance in run `{run}`: measured {row['measured']:.1f} +- {row['measured_std']:.2g} Hz, "
+                    f"nominal model {row['original']:.1f} Hz ({row['original_error_pct']:.1f} % off), updated model "
+                    f"{row['updated']:.1f} Hz ({row['error_pct']:.2f} % off){caveat}"))
             sections.append(Section(f"Model update {run} (thesis ch. 5.2-5.3, 6.3)", [
                 table(f"{base}/comparison.tsv", "Measured features against the original and the updated model "
                                                 "(thesis Tables 6.4 and 6.5; reference rotor: Tables 5.2 and 5.3)."),
+                Text(f"**{undetermined} of {len(variables)} update variables are not determined by the data**: their "
+                     "updated values are not measurements (hatched in the figure below)." if undetermined else
+                     f"All {len(variables)} update variables are determined by the data."),
                 table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "
                                                "resolution; `determined` is False where the data cannot fix a value."),
                 Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
@@ -377,19 +489,24 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
     if identification_runs:
         ledger = read_tsv(root / "ledger/ledger.tsv")
         overall = ledger[ledger["output"] == "all"].drop(columns=["machine", "output", "input"])
-        summary.blocks.append(Table(overall, "Misfit of every model variant over every measured channel "
-                                             "(chi2 per point; excess over the noise floor of 1)."))
+        verdicts.append(Figure(root / "ledger/figures/ledger.png", caption("ledger")))
+        if (root / "ledger/figures/excess_maps.png").exists():
+            verdicts.append(Figure(root / "ledger/figures/excess_maps.png", caption("excess_maps")))
+        facts.append(Table(overall, "Misfit of every model variant over every measured channel (chi2 per point; "
+                                    "excess over the floor of 1).", f"results/{machine}/ledger/ledger.tsv"))
         sections.append(Section("Diagnosis loop (beyond the thesis)", [
-            Text(caption("diagnosis_loop")),
-            Figure(root / "ledger/figures/ledger.png", caption("ledger")),
-            Table(overall, "Overall misfit per variant.", f"results/{machine}/ledger/ledger.tsv")]))
+            Text(caption("diagnosis_loop") + "\n\nThe ledger and the misfit maps of every variant are in the "
+                 "Summary above; the comparison and diagnosis of each variant follow.")]))
     for run in identification_runs:
         for variant in variants:
             compare, diagnose = f"compare/{run}/{variant}", f"diagnose/{run}/{variant}"
             diagnosis = (root / diagnose / "diagnosis.md").read_text()
+            warnings += warnings_of(f"{compare}/findings.tsv", f"{variant} against {run}")
             if variant == variants[-1]:
-                summary.blocks.append(Text(f"Diagnosis of the last variant, `{variant}`, on run `{run}`: "
-                                           + _first_paragraph(diagnosis)))
+                warnings += warnings_of(f"{diagnose}/findings.tsv", f"diagnosis of {variant} on {run}")
+                verdicts.insert(0, Text(f"**Diagnosis of the last variant, `{variant}`, on run `{run}`** "
+                                        f"({_misfit_change(root / diagnose / 'verdict.tsv')}):\n\n"
+                                        + verdict_markdown(diagnosis)))
             sections.append(Section(f"{variant} against {run}", [
                 Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
                 Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
@@ -401,5 +518,6 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Text(diagnosis),
                 Figure(root / diagnose / "figures/fingerprint.png",
                        caption("diagnose_fingerprint", run=run, variant=variant))], level=3))
+    summary.blocks = verdicts + [_warnings_block(warnings)] + facts
     introduction = caption("introduction")
     return introduction, sections
