@@ -19,7 +19,7 @@ from .io import atomic_path  # noqa: E402
 
 __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
            "calibration_convergence", "youngs_modulus", "update_convergence", "bode_compare", "error_map",
-           "residual_fingerprint", "ledger", "excess_maps", "db", "phase_deg", "frequency_axis", "bla_distortion", "method_comparison", "save_figure"]
+           "residual_fingerprint", "ledger", "excess_maps", "sensitivity_zones", "campbell_diagram", "db", "phase_deg", "frequency_axis", "bla_distortion", "method_comparison", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -616,4 +616,92 @@ def method_comparison(runs, channel_label, title):
         axis.legend(fontsize=7)
     figure.suptitle(title)
     figure.tight_layout()
+    return figure
+
+
+def sensitivity_zones(measured, models, zone_limits_db, title, columns=2):
+    """Measured output sensitivity ``|U2/Eu|`` per axis beside the models', with the ISO 14839-3 zone limits.
+
+    Parameters
+    ----------
+    measured : dict axis -> (frequency_hz, sensitivity, std)
+    models : dict label -> {axis: (frequency_hz, sensitivity)}
+    zone_limits_db : sequence of (limit_db, zone)
+        Upper limit of each zone (A, B, C); above the last is D.
+    """
+    axes_names = list(measured) or sorted({a for curves in models.values() for a in curves})
+    columns = max(1, min(columns, len(axes_names)))
+    rows = -(-len(axes_names) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(5.5 * columns, 3.0 * rows + 0.6), squeeze=False,
+                                layout="constrained")
+    shades = ("#d4ecd4", "#fff3c4", "#ffd8b0", "#f4b6b6")
+    for axis, name in zip(axes.flat, axes_names):
+        lower = -60.0
+        for (limit, zone), shade in zip(list(zone_limits_db) + [(60.0, "D")], shades):
+            axis.axhspan(lower, limit, color=shade, lw=0, zorder=0)
+            axis.text(1.01, min(limit, 18) - 0.4, zone, transform=axis.get_yaxis_transform(), fontsize=7, va="top")
+            lower = limit
+        for limit, _ in zone_limits_db:
+            axis.axhline(limit, color="0.4", lw=0.6, ls="--")
+        for k, (label, curves) in enumerate(models.items(), start=1):
+            if name in curves:
+                frequency, values = curves[name]
+                axis.plot(frequency, db(values), lw=1.2, color=f"C{k}", label=f"model {label}")
+        if name in measured:
+            frequency, values, std = measured[name]
+            size = np.abs(values)
+            axis.fill_between(frequency, db(np.maximum(size - 2 * std, 1e-3 * size)), db(size + 2 * std), color="0.6",
+                              alpha=0.5, lw=0)
+            axis.plot(frequency, db(values), "k.", ms=2.5, label="measured |U2/Eu| (+-2 sigma)")
+            peak = int(np.argmax(size))
+            axis.plot(frequency[peak], db(size[peak]), "kv", ms=6)
+            axis.annotate(f"{db(size[peak]):.1f} dB at {frequency[peak]:.0f} Hz", (frequency[peak], db(size[peak])),
+                          textcoords="offset points", xytext=(4, 6), fontsize=7)
+        frequency_axis(axis, np.concatenate([c[name][0] for c in models.values() if name in c]
+                                            + ([measured[name][0]] if name in measured else [])))
+        axis.set_ylim(-20, 18)
+        axis.set_title(f"axis {name}", fontsize=9)
+        axis.set_ylabel("|S| [dB]", fontsize=8)
+        axis.set_xlabel("frequency [Hz]", fontsize=8)
+        axis.grid(True, which="both", alpha=0.3)
+    for axis in list(axes.flat)[len(axes_names):]:
+        axis.set_axis_off()
+    axes.flat[0].legend(fontsize=7, loc="lower right")
+    figure.suptitle(title)
+    return figure
+
+
+def campbell_diagram(modes, measured_hz, max_frequency_hz, title):
+    """Closed-loop natural frequencies over rotor speed with the synchronous line and the modes measured at standstill.
+
+    Parameters
+    ----------
+    modes : pandas.DataFrame
+        `ambid.commissioning.campbell`: ``speed_rpm``, ``frequency_hz``, ``whirl``.
+    measured_hz : array
+        Resonances identified at standstill, marked at speed 0.
+    """
+    figure, axis = plt.subplots(figsize=(8, 5), layout="constrained")
+    styles = {"forward": ("^", "C3", "forward whirl"), "backward": ("v", "C0", "backward whirl"),
+              "planar": ("o", "0.3", "standstill (planar)")}
+    for whirl, (marker, colour, label) in styles.items():
+        part = modes[modes["whirl"] == whirl]
+        if not part.empty:
+            axis.plot(part["speed_rpm"], part["frequency_hz"], marker, color=colour, ms=3, ls="none", label=label)
+    other = modes[~modes["whirl"].isin(list(styles))]
+    if not other.empty:
+        axis.plot(other["speed_rpm"], other["frequency_hz"], ".", color="0.6", ms=3, ls="none", label="other")
+    speeds = np.linspace(0, float(modes["speed_rpm"].max()) if not modes.empty else 1.0, 50)
+    axis.plot(speeds, speeds / 60, "k-", lw=1.0, label="1x (synchronous)")
+    measured_hz = np.asarray(measured_hz, dtype=float)
+    if measured_hz.size:
+        axis.plot(np.zeros_like(measured_hz), measured_hz, "*", color="C2", ms=10, mec="k", mew=0.5, clip_on=False,
+                  label="identified at standstill (fit)", zorder=5)
+    axis.set_ylim(0, max_frequency_hz)
+    axis.set_xlim(left=0)
+    axis.set_xlabel("rotor speed [rpm]")
+    axis.set_ylabel("closed-loop natural frequency [Hz]")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize=7, loc="upper left")
+    axis.set_title(title)
     return figure

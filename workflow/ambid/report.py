@@ -342,7 +342,7 @@ def _fit_quality(root, machine, run):
 
 
 def machine_report(machine, results_dir, calibration_runs=(), identification_runs=(), variants=("nominal",),
-                   updated=False, captions=None, multisine_runs=()):
+                   updated=False, captions=None, multisine_runs=(), commissioning_runs=()):
     """Sections of the report of one machine, read from the workflow's results.
 
     Parameters
@@ -359,6 +359,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         Caption templates by name (``workflow/report/<name>.md``).
     multisine_runs : sequence of str
         The identification runs made by multisine (their FRF stage is the BLA).
+    commissioning_runs : sequence of str
+        The runs with a commissioning view (measured sensitivity, zones, margins, Campbell diagram).
 
     Returns
     -------
@@ -475,6 +477,22 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
                 Figure(root / base / "figures/youngs_modulus.png", caption("update_modulus", run=run)),
                 Figure(root / base / "figures/convergence.png", caption("update_convergence", run=run))]))
+    for run in commissioning_runs:
+        base = f"commissioning/{run}"
+        sensitivity = read_tsv(root / base / "sensitivity.tsv")
+        measured = sensitivity[sensitivity["source"] == "measured"]
+        facts.append(Text(f"Measured sensitivity peak per axis (run `{run}`, ISO 14839-3 zone): " + ", ".join(
+            f"{r.axis} {r.sensitivity_peak_db:.1f} dB at {r.sensitivity_peak_hz:.0f} Hz (zone {r.iso_14839_zone})"
+            for r in measured.itertuples()) + "."))
+        sections.append(Section(f"Commissioning view {run} (ISO 14839-3, beyond the thesis)", [
+            Text(caption("commissioning", run=run)),
+            Figure(root / base / "figures/sensitivity.png", caption("commissioning_sensitivity", run=run)),
+            table(f"{base}/sensitivity.tsv", "Sensitivity peak, ISO 14839-3 zone (A < 9.5 dB, B < 12 dB, C < 14 dB, D "
+                                             "above) and the margins of the loop gain L = 1/S - 1 per axis: measured, "
+                                             "and each model on the measured frequencies and from 1 Hz to Nyquist. An "
+                                             "empty margin: no crossing on that grid (for the measurement: not within "
+                                             "the measured band)."),
+            Figure(root / base / "figures/campbell.png", caption("campbell", run=run))]))
     model = Section("Model variants", [Text(caption("variants"))])
     sections.append(model)
     for variant in variants:
