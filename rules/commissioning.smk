@@ -15,6 +15,7 @@ rule commissioning:
         campbell="results/{machine}/commissioning/{run}/campbell.tsv",
         sensitivity_figure="results/{machine}/commissioning/{run}/figures/sensitivity.png",
         campbell_figure="results/{machine}/commissioning/{run}/figures/campbell.png",
+        modes_figure="results/{machine}/commissioning/{run}/figures/levitated_modes.png",
     log:
         "logs/{machine}/commissioning_{run}.log",
     benchmark:

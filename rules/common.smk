@@ -435,7 +435,13 @@ def machine_outputs(machine):
     return outputs
 
 
-COMMISSIONING_OUTPUTS = ["sensitivity.tsv", "campbell.tsv", "figures/sensitivity.png", "figures/campbell.png"]
+COMMISSIONING_OUTPUTS = [
+    "sensitivity.tsv",
+    "campbell.tsv",
+    "figures/sensitivity.png",
+    "figures/campbell.png",
+    "figures/levitated_modes.png",
+]
 
 
 def commissioning_runs(machine):

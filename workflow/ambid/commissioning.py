@@ -12,6 +12,10 @@ loop-at-a-time sensitivity of that axis, ``S = 1 / (1 + L)``, so its loop gain
 quantity ISO 14839-3 grades (zones A/B/C/D below 9.5 / 12 / 14 dB,
 `ambid.loop.iso_zone`).
 
+The levitated rotor's mode shapes are the closed loop's structural eigenvectors
+at standstill (the bearings' negative stiffness and the controllers' stiffness
+and damping included), not the free-free modes of the model file.
+
 The Campbell diagram is the closed loop's natural frequencies over rotor speed
 (`ambid.plant.Plant.at_speed`: the gyroscopic coupling splits each planar mode
 into a forward and a backward whirl), with the synchronous line 1x.
@@ -26,7 +30,7 @@ from .machine import AXIAL_AXIS, RADIAL_AXES
 from .plant import damping_ratio
 
 __all__ = ["ISO_ZONE_LIMITS_DB", "measured_sensitivity", "model_sensitivity", "loop_margins", "sensitivity_rows",
-           "campbell"]
+           "campbell", "levitated_modes"]
 
 #: ISO 14839-3 zone limits of the sensitivity peak [dB]: A/B, B/C, C/D (20 log10 of 3, 4, 5).
 ISO_ZONE_LIMITS_DB = tuple((float(20 * np.log10(limit)), zone) for limit, zone in ISO_14839_ZONES)
@@ -181,3 +185,50 @@ def campbell(plant, speeds_rpm, max_frequency_hz, min_participation=1e-3):
             rows.append({"speed_rpm": float(speed), "frequency_hz": float(frequency), "damping_ratio": float(zeta[k]),
                          "whirl": whirl if speed > 0 else "planar"})
     return pd.DataFrame(rows, columns=["speed_rpm", "frequency_hz", "damping_ratio", "whirl"])
+
+
+def levitated_modes(plant, count=4, max_frequency_hz=np.inf, min_participation=1e-3):
+    """Mode shapes of the levitated rotor: the lowest structural modes of the closed loop at standstill.
+
+    Parameters
+    ----------
+    plant : ambid.plant.Plant
+    count : int
+        Modes returned at most (x plane; at standstill the y plane has the same ones).
+    max_frequency_hz : float
+        Modes above are left out.
+    min_participation : float
+        Plant participation below which a pole is a controller or filter pole (see `campbell`).
+
+    Returns
+    -------
+    frequency_hz : array (n,)
+        Damped natural frequencies.
+    damping : array (n,)
+    displacement : array (n_nodes, n)
+        Real displacement along the rotor (x plane), phase-aligned so that its
+        largest component is real and positive, normalized to unit peak.
+    """
+    standstill = plant.at_speed(0.0) if plant.machine.speed_rad_s else plant
+    closed = standstill.closed_loop_poles()
+    finite = np.isfinite(closed.s_poles)
+    poles, vectors, participation = closed.s_poles[finite], closed.vectors[:, finite], closed.plant_participation[finite]
+    n_modes = standstill.modes.shapes.shape[1]
+    u = standstill.modes.shapes[0::2]
+    zeta = damping_ratio(poles)
+    picked = []
+    for k in np.argsort(np.abs(poles.imag)):
+        if poles[k].imag <= 1e-6 or participation[k] < min_participation or poles[k].imag > 2 * np.pi * max_frequency_hz:
+            continue
+        ex, ey = vectors[:n_modes, k], vectors[n_modes:2 * n_modes, k]
+        if np.sum(np.abs(ex) ** 2) < np.sum(np.abs(ey) ** 2):
+            continue  # the y-plane twin
+        shape = u @ ex
+        shape = shape * np.exp(-1j * np.angle(shape[np.argmax(np.abs(shape))]))
+        picked.append((poles[k].imag / (2 * np.pi), zeta[k], shape.real / np.max(np.abs(shape.real))))
+        if len(picked) == count:
+            break
+    if not picked:
+        return np.zeros(0), np.zeros(0), np.zeros((u.shape[0], 0))
+    frequency, damping, shapes = zip(*picked)
+    return np.array(frequency), np.array(damping), np.column_stack(shapes)

@@ -262,15 +262,21 @@ def calibration_convergence(offsets, tolerance_m, title):
     """
     axes_names = list(dict.fromkeys(offsets["axis"]))
     figure, axes = plt.subplots(1, len(axes_names), figsize=(3.2 * len(axes_names), 3.4), sharey=True, squeeze=False)
+    repetitions = list(dict.fromkeys(offsets["repetition"]))
+    # repetitions often agree to well below a line width: each is shifted sideways a little, with its own marker
+    shift = {r: 0.25 * (k - (len(repetitions) - 1) / 2) / max(len(repetitions) - 1, 1) for k, r in enumerate(repetitions)}
+    markers = "osD^vP*X"
     for axis, name in zip(axes[0], axes_names):
         for repetition, group in offsets[offsets["axis"] == name].groupby("repetition"):
-            axis.plot(group["iteration"], group["offset_m"] * 1e6, marker="o", ms=3, lw=1, label=f"rep. {repetition}")
+            k = repetitions.index(repetition)
+            axis.plot(group["iteration"] + shift[repetition], group["offset_m"] * 1e6, marker=markers[k % len(markers)],
+                      ms=3.5, lw=1, alpha=0.85, label=f"rep. {repetition}")
         axis.axhspan(-tolerance_m * 1e6, tolerance_m * 1e6, color="green", alpha=0.15)
         axis.set_title(name)
         axis.set_xlabel("iteration")
         axis.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         axis.grid(True, alpha=0.3)
-    axes[0, 0].set_ylabel("offset x_c [um]")
+    axes[0, 0].set_ylabel("offset x_c [um] (repetitions shifted sideways)")
     axes[0, -1].legend(fontsize=7)
     figure.suptitle(title)
     figure.tight_layout()

@@ -492,7 +492,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                                              "and each model on the measured frequencies and from 1 Hz to Nyquist. An "
                                              "empty margin: no crossing on that grid (for the measurement: not within "
                                              "the measured band)."),
-            Figure(root / base / "figures/campbell.png", caption("campbell", run=run))]))
+            Figure(root / base / "figures/campbell.png", caption("campbell", run=run)),
+            Figure(root / base / "figures/levitated_modes.png", caption("levitated_modes", run=run))]))
     model = Section("Model variants", [Text(caption("variants"))])
     sections.append(model)
     for variant in variants:

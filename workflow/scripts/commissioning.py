@@ -3,12 +3,13 @@
 import numpy as np
 import pandas as pd
 
-from ambid.commissioning import ISO_ZONE_LIMITS_DB, campbell, measured_sensitivity, model_sensitivity, sensitivity_rows
+from ambid.commissioning import (ISO_ZONE_LIMITS_DB, campbell, levitated_modes, measured_sensitivity, model_sensitivity,
+                                 sensitivity_rows)
 from ambid.io import read_tsv, read_yaml, rule_log, write_tsv
 from ambid.logs import read_identification_log
 from ambid.machine import machine_from_config
 from ambid.plant import Plant, damping_ratio
-from ambid.plots import campbell_diagram, save_figure, sensitivity_zones
+from ambid.plots import campbell_diagram, mode_shapes, save_figure, sensitivity_zones
 
 log = rule_log(snakemake.log[0], "commissioning")
 
@@ -59,3 +60,15 @@ save_figure(campbell_diagram(modes, np.unique(np.round(resonances["frequency_hz"
                              f"{machine_name}: Campbell diagram of the closed loop, model {last}"),
             snakemake.output.campbell_figure, snakemake.params.dpi)
 log.info("campbell: %d modes at %d speeds up to %.0f Hz", len(modes), speeds.size, max_frequency)
+
+# mode shapes of the levitated rotor (closed loop at standstill) up to 1.5 times the measured band
+frequency, damping, shapes = levitated_modes(plants[last], count=4, max_frequency_hz=1.5 * band_top)
+planar = np.zeros((2 * shapes.shape[0], shapes.shape[1]))
+planar[0::2] = shapes  # mode_shapes draws the displacement rows of [u, theta]
+rotor_machine = plants[last].machine
+save_figure(mode_shapes(rotor_machine.rotor.node_positions_m, planar, frequency,
+                        [b.actuator_position_m for b in rotor_machine.radial_bearings],
+                        [b.sensor_position_m for b in rotor_machine.radial_bearings],
+                        f"{machine_name}: levitated rotor, closed-loop modes at standstill (model {last})"),
+            snakemake.output.modes_figure, snakemake.params.dpi)
+log.info("levitated modes: %s Hz (damping %s)", np.round(frequency, 1), np.round(damping, 4))
