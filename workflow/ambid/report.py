@@ -418,7 +418,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Figure(root / base / f"figures/{name}.png", caption("frf", run=run)) for name in ("radial_mimo", "axial")]
                 + [Figure(root / base / "figures/distortion.png", caption("distortion", run=run)),
                    table(f"{base}/distortion.tsv", "Output at the excited, odd-detection and even-detection lines of "
-                                                   "the coarse pass (rms per line [m]) and their ratios [dB].")]))
+                                                   "the coarse pass (rms per line [um]) and their ratios [dB].")]))
         else:
             floors = read_tsv(root / base / "floor.tsv")
             warnings += warnings_of(f"{base}/findings.tsv", f"identification {run}")
