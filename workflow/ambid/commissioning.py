@@ -221,11 +221,12 @@ def levitated_modes(plant, count=4, max_frequency_hz=np.inf, min_participation=1
         if poles[k].imag <= 1e-6 or participation[k] < min_participation or poles[k].imag > 2 * np.pi * max_frequency_hz:
             continue
         ex, ey = vectors[:n_modes, k], vectors[n_modes:2 * n_modes, k]
-        if np.sum(np.abs(ex) ** 2) < np.sum(np.abs(ey) ** 2):
-            continue  # the y-plane twin
+        frequency = poles[k].imag / (2 * np.pi)
+        if np.sum(np.abs(ex) ** 2) < np.sum(np.abs(ey) ** 2) or any(abs(frequency - f) <= 1e-3 * f for f, _, _ in picked):
+            continue  # the y-plane twin (at standstill a degenerate pair may mix the planes: the same frequency)
         shape = u @ ex
         shape = shape * np.exp(-1j * np.angle(shape[np.argmax(np.abs(shape))]))
-        picked.append((poles[k].imag / (2 * np.pi), zeta[k], shape.real / np.max(np.abs(shape.real))))
+        picked.append((frequency, zeta[k], shape.real / np.max(np.abs(shape.real))))
         if len(picked) == count:
             break
     if not picked:
