@@ -138,11 +138,12 @@ def test_the_summary_says_what_it_does_not_know():
 
 def test_phase_has_no_wrap_strokes():
     frequency = np.linspace(1, 100, 400)
-    values = np.exp(-2j * np.pi * frequency * 0.1)  # a delay: the phase wraps ten times
+    values = -np.exp(-2j * np.pi * frequency * 0.1)  # a negative stiffness and a delay: the phase wraps ten times
     phase = phase_deg(values)
-    finite = phase[np.isfinite(phase)]
-    assert np.isnan(phase).sum() == 10 and np.all(np.abs(np.diff(phase)[np.isfinite(np.diff(phase))]) < 180)
-    assert finite.size == frequency.size
+    assert phase.size == frequency.size and np.all(np.abs(np.diff(phase)) < 180)  # continuous: no +-180 strokes
+    assert phase[0] == pytest.approx(-180 - 36, abs=1e-6)  # starts on the -180 deg branch of an AMB plant
+    assert phase[-1] - phase[0] == pytest.approx(-360 * 0.1 * 99, abs=1e-6)
+    assert phase_deg(np.array([1 + 0.01j]))[0] == pytest.approx(np.degrees(0.01), rel=1e-3)  # a plain response at 0
 
 
 def test_excess_maps_share_one_scale_and_hatch_what_is_not_measured(tmp_path):

@@ -37,26 +37,18 @@ def db(values):
 
 
 def phase_deg(values):
-    """Phase in degrees, wrapped to (-180, 180], with NaN inserted where it wraps.
+    """Phase in degrees, unwrapped along the frequency axis, starting in [-270, 90) deg.
 
-    A line drawn through the result has no vertical +-180 degree strokes at
-    the wraps (the field's convention: a phase plot shows no wrap lines).
+    The field draws a Bode phase continuous: no vertical +-180 degree strokes
+    at the wraps.  The start convention puts an AMB plant's low-frequency phase
+    (negative stiffness: a negative real response) at -180 deg and a
+    well-behaved response at 0, so measured and model curves drawn on the same
+    axes start on the same branch.
     """
-    phase = np.degrees(np.angle(np.asarray(values)))
-    if phase.size < 2:
-        return phase
-    jump = np.abs(np.diff(phase)) > 180
-    return np.insert(phase, np.flatnonzero(jump) + 1, np.nan)
-
-
-def _with_breaks(frequency_hz, values):
-    """Frequencies matching `phase_deg` (NaN where the phase wraps)."""
-    frequency_hz = np.asarray(frequency_hz, dtype=float)
-    phase = np.degrees(np.angle(np.asarray(values)))
-    if phase.size < 2:
-        return frequency_hz
-    jump = np.abs(np.diff(phase)) > 180
-    return np.insert(frequency_hz, np.flatnonzero(jump) + 1, np.nan)
+    phase = np.degrees(np.unwrap(np.angle(np.asarray(values))))
+    if phase.size:
+        phase = phase - 360.0 * np.floor((phase[0] + 270.0) / 360.0)
+    return phase
 
 
 def frequency_axis(axis, frequency_hz):
@@ -68,8 +60,7 @@ def frequency_axis(axis, frequency_hz):
 
 
 def _phase_axis(axis):
-    axis.set_ylim(-190, 190)
-    axis.set_yticks([-180, -90, 0, 90, 180])
+    axis.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(nbins=6, steps=[4.5, 9]))  # multiples of 45 or 90 deg
 
 
 def _bode_grid(panels, columns=2, width=11.0, height=3.6):
@@ -94,7 +85,7 @@ def _bode_grid(panels, columns=2, width=11.0, height=3.6):
 
 def _bode_axes(magnitude_axis, phase_axis, frequency_hz, values, label=None, **style):
     magnitude_axis.plot(frequency_hz, db(values), label=label, **style)
-    phase_axis.plot(_with_breaks(frequency_hz, values), phase_deg(values), **style)
+    phase_axis.plot(frequency_hz, phase_deg(values), **style)
     frequency_axis(phase_axis, frequency_hz)
 
 
@@ -167,10 +158,10 @@ def bode_measured(channels, title, unit="m/A", fits=None):
         magnitude_axis.fill_between(frequency, db(np.maximum(magnitude - 2 * std, magnitude * 1e-3)), db(magnitude + 2 * std),
                                     alpha=0.25, lw=0, color="C0")
         magnitude_axis.plot(frequency, db(values), label="measured", **measured_style)
-        phase_axis.plot(_with_breaks(frequency, values), phase_deg(values), **measured_style)
+        phase_axis.plot(frequency, phase_deg(values), **measured_style)
         for n, (name, model) in enumerate((fits[k] if fits is not None else {}).items(), start=1):
             magnitude_axis.plot(frequency, db(model), lw=1.0, color=f"C{n}", label=name)
-            phase_axis.plot(_with_breaks(frequency, model), phase_deg(model), lw=1.0, color=f"C{n}")
+            phase_axis.plot(frequency, phase_deg(model), lw=1.0, color=f"C{n}")
         frequency_axis(phase_axis, frequency)
         magnitude_axis.set_title(label, fontsize=9)
         magnitude_axis.set_ylabel(f"|G| [dB re 1 {unit}]", fontsize=8)
@@ -362,13 +353,13 @@ def bode_compare(measured, models, channels, title):
                                label="measured +-2 sigma")
         magnitude.plot(frequency, db(values), "k.", ms=2.5, label="measured")
         band_deg = np.degrees(np.minimum(2 * std / np.maximum(size, 1e-300), np.pi))
-        measured_phase = np.degrees(np.angle(values))
+        measured_phase = phase_deg(values)
         phase.fill_between(frequency, measured_phase - band_deg, measured_phase + band_deg, color="0.8")
         phase.plot(frequency, measured_phase, "k.", ms=2.5)
         for label, response in models.items():
             if key in response:
                 magnitude.plot(frequency, db(response[key]), lw=1.2, label=label)
-                phase.plot(_with_breaks(frequency, response[key]), phase_deg(response[key]), lw=1.2)
+                phase.plot(frequency, phase_deg(response[key]), lw=1.2)
         frequency_axis(phase, frequency)
         magnitude.set_title(_channel_label(key), fontsize=9)
         magnitude.set_ylabel(f"[dB re 1 {unit}]", fontsize=8)
@@ -505,11 +496,11 @@ def residual_fingerprint(measured, model, predicted, channels, title, candidate_
         frequency, values, _ = measured[key]
         ratio = values / model[key]
         magnitude.plot(frequency, db(ratio), "k.", ms=2.5, label="measured / model")
-        phase.plot(frequency, np.degrees(np.angle(ratio)), "k.", ms=2.5)
+        phase.plot(frequency, phase_deg(ratio), "k.", ms=2.5)
         if predicted is not None:
             change = predicted[key] / model[key]
             magnitude.plot(frequency, db(change), "C3", lw=1.4, label=f"{candidate_label} / model")
-            phase.plot(_with_breaks(frequency, change), phase_deg(change), "C3", lw=1.4)
+            phase.plot(frequency, phase_deg(change), "C3", lw=1.4)
         frequency_axis(phase, frequency)
         magnitude.set_title(_channel_label(key), fontsize=9)
         magnitude.set_ylabel("ratio [dB]", fontsize=8)

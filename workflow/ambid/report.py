@@ -142,8 +142,8 @@ details.level2 > summary { border-bottom: 1px solid #aaa; margin-top: 1.5em; pad
 details.level3 { margin-left: 0.5em; } details.level3 > summary { margin-top: 1em; cursor: pointer; }
 .scroll { max-width: 100%; overflow-x: auto; margin: 0.5em 0 1em; }
 table { border-collapse: collapse; font-size: 0.85em; }
-th, td { border: 1px solid #ccc; padding: 2px 6px; text-align: right; } th { background: #eee; }
-td:first-child, th:first-child { text-align: left; }
+th, td { border: 1px solid #ccc; padding: 2px 6px; text-align: left; vertical-align: top; } th { background: #eee; }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 figure { margin: 1em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption, .caption { font-size: 0.9em; color: #444; }
 code { background: #f4f4f4; padding: 0 2px; overflow-wrap: anywhere; } pre { background: #f4f4f4; padding: 0.5em; overflow-x: auto; }
@@ -169,14 +169,25 @@ def _block_html(block):
         return (f'<figure><img alt="{html.escape(_alt_text(block))}" src="data:image/png;base64,{data}">'
                 f"<figcaption>{markdown_html(block.caption)}</figcaption></figure>")
     if isinstance(block, Table):
-        table = block.frame.to_html(index=False, na_rep="", float_format=_number, border=0)
+        table = _table_html(block.frame)
         source = f'<div class="source">{html.escape(block.source)}</div>' if block.source else ""
         return f'<div class="caption">{markdown_html(block.caption)}</div>{_scroll(table)}{source}'
     return markdown_html(block.markdown)
 
 
-def _number(x):
-    return f"{x:.4g}"
+def _cell(value):
+    if isinstance(value, (float, np.floating)):
+        return "" if np.isnan(value) else f"{value:.4g}"
+    return html.escape(str(value))
+
+
+def _table_html(frame):
+    """A data frame as an HTML table: numbers right-aligned (class ``num``), text left, NaN empty."""
+    numeric = [pd.api.types.is_numeric_dtype(frame[c]) and not pd.api.types.is_bool_dtype(frame[c]) for c in frame.columns]
+    head = "".join(f'<th{" class=num" if n else ""}>{html.escape(str(c))}</th>' for c, n in zip(frame.columns, numeric))
+    rows = "".join("<tr>" + "".join(f'<td{" class=num" if n else ""}>{_cell(v)}</td>' for v, n in zip(row, numeric))
+                   + "</tr>" for row in frame.itertuples(index=False))
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>"
 
 
 def _contents(sections):
