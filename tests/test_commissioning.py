@@ -56,3 +56,39 @@ def test_measured_sensitivity_is_u2_over_the_known_sine_excitation():
 def test_iso_zone_limits_in_db():
     assert [round(limit, 1) for limit, _ in ISO_ZONE_LIMITS_DB] == [9.5, 12.0, 14.0]
     assert [zone for _, zone in ISO_ZONE_LIMITS_DB] == ["A", "B", "C"]
+
+
+def test_measured_and_model_sensitivity_agree_on_a_simulated_loop(demo_plant):
+    """The model's own output sensitivity, put into a log as U2 = S (-j A), comes back with its ISO zone and margins."""
+    from ambid.commissioning import model_sensitivity
+
+    frequency = np.logspace(0, 3, 300)
+    model = model_sensitivity(demo_plant, frequency)
+    assert set(model) >= {"DX", "DY", "NX", "NY"}
+    # an AMB loop stabilizes an unstable plant: S -> 1 at high frequency, a lower gain margin exists (negative dB)
+    for axis in ("DX", "NX"):
+        s = model[axis]
+        assert abs(s[-1]) == pytest.approx(1.0, abs=0.3)
+        margins = loop_margins(frequency, s)
+        assert margins["lower_gain_margin_db"] < 0 and 0 < margins["phase_margin_deg"] < 90
+
+
+def test_levitated_modes_and_campbell(demo_plant):
+    from ambid.commissioning import campbell, levitated_modes
+
+    frequency, damping, shapes = levitated_modes(demo_plant, count=4)
+    flexible = demo_plant.modes.frequency_hz[demo_plant.modes.frequency_hz > 0.5]
+    # two rigid-body suspension modes far below the first free-free bending mode (demo20's housing mode follows),
+    # then the first bending mode near its free-free frequency; each mode once (x plane)
+    assert frequency.size == 4 and np.all(np.diff(frequency) > 0)
+    assert frequency[1] < 0.1 * flexible[0] and np.any(np.abs(frequency / flexible[0] - 1) < 0.1)
+    assert np.allclose(np.max(np.abs(shapes), axis=0), 1.0) and np.all(damping > 0)
+    modes = campbell(demo_plant, [0.0, 30000.0], 2 * flexible[0])
+    spinning = modes[modes["speed_rpm"] > 0]
+    assert set(modes.loc[modes["speed_rpm"] == 0, "whirl"]) == {"planar"}
+    assert {"forward", "backward"} <= set(spinning["whirl"])
+    # the gyroscopic split of the first bending mode: forward above backward
+    bending = frequency[np.argmin(np.abs(frequency / flexible[0] - 1))]
+    near = spinning[np.abs(spinning["frequency_hz"] - bending) < 0.1 * bending]
+    assert near.loc[near["whirl"] == "forward", "frequency_hz"].max() > near.loc[near["whirl"] == "backward",
+                                                                                 "frequency_hz"].min()
