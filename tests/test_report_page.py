@@ -13,7 +13,7 @@ import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
 from ambid.diagnosis_report import share_text  # noqa: E402
-from ambid.plots import excess_maps, phase_deg, save_figure  # noqa: E402
+from ambid.plots import excess_maps, phase_deg, phase_near, save_figure  # noqa: E402
 from ambid.report import (Figure, Section, Table, Text, engineering_units, render_report, update_caveat,  # noqa: E402
                           verdict_markdown)
 
@@ -144,6 +144,8 @@ def test_phase_has_no_wrap_strokes():
     assert phase[0] == pytest.approx(-180 - 36, abs=1e-6)  # starts on the -180 deg branch of an AMB plant
     assert phase[-1] - phase[0] == pytest.approx(-360 * 0.1 * 99, abs=1e-6)
     assert phase_deg(np.array([1 + 0.01j]))[0] == pytest.approx(np.degrees(0.01), rel=1e-3)  # a plain response at 0
+    # measured points follow the model's branch: 350 deg below on their own, 10 deg above the model here
+    assert phase_near(np.exp(1j * np.radians(-350.0)), -20.0) == pytest.approx(10.0)
 
 
 def test_excess_maps_share_one_scale_and_hatch_what_is_not_measured(tmp_path):

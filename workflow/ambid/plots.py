@@ -51,6 +51,19 @@ def phase_deg(values):
     return phase
 
 
+def phase_near(values, reference_deg):
+    """Phase in degrees on the branch of ``reference_deg`` (within 180 deg of it, point by point).
+
+    Measured points unwrapped on their own can take the other branch at an
+    anti-resonance (noise decides whether the phase steps by +180 or -180
+    deg) and end 360 deg away from the model drawn over them; drawn near the
+    model's unwrapped phase they stay on its branch, and what is plotted is
+    the physical phase difference.
+    """
+    reference_deg = np.asarray(reference_deg, dtype=float)
+    return reference_deg + np.degrees(np.angle(np.asarray(values) * np.exp(-1j * np.radians(reference_deg))))
+
+
 def frequency_axis(axis, frequency_hz):
     """Log frequency axis where the band spans a decade or more (the field's Bode convention), linear below."""
     frequency_hz = np.asarray(frequency_hz, dtype=float)
@@ -158,10 +171,12 @@ def bode_measured(channels, title, unit="m/A", fits=None):
         magnitude_axis.fill_between(frequency, db(np.maximum(magnitude - 2 * std, magnitude * 1e-3)), db(magnitude + 2 * std),
                                     alpha=0.25, lw=0, color="C0")
         magnitude_axis.plot(frequency, db(values), label="measured", **measured_style)
-        phase_axis.plot(frequency, phase_deg(values), **measured_style)
-        for n, (name, model) in enumerate((fits[k] if fits is not None else {}).items(), start=1):
+        models = fits[k] if fits is not None else {}
+        reference = phase_deg(next(iter(models.values()))) if models else phase_deg(values)  # the first fit's branch
+        phase_axis.plot(frequency, phase_near(values, reference), **measured_style)
+        for n, (name, model) in enumerate(models.items(), start=1):
             magnitude_axis.plot(frequency, db(model), lw=1.0, color=f"C{n}", label=name)
-            phase_axis.plot(frequency, phase_deg(model), lw=1.0, color=f"C{n}")
+            phase_axis.plot(frequency, phase_near(model, reference), lw=1.0, color=f"C{n}")
         frequency_axis(phase_axis, frequency)
         magnitude_axis.set_title(label, fontsize=9)
         magnitude_axis.set_ylabel(f"|G| [dB re 1 {unit}]", fontsize=8)
@@ -353,13 +368,15 @@ def bode_compare(measured, models, channels, title):
                                label="measured +-2 sigma")
         magnitude.plot(frequency, db(values), "k.", ms=2.5, label="measured")
         band_deg = np.degrees(np.minimum(2 * std / np.maximum(size, 1e-300), np.pi))
-        measured_phase = phase_deg(values)
+        drawn = [response[key] for response in models.values() if key in response]
+        reference = phase_deg(drawn[0]) if drawn else phase_deg(values)  # the first model's branch for every curve
+        measured_phase = phase_near(values, reference)
         phase.fill_between(frequency, measured_phase - band_deg, measured_phase + band_deg, color="0.8")
         phase.plot(frequency, measured_phase, "k.", ms=2.5)
         for label, response in models.items():
             if key in response:
                 magnitude.plot(frequency, db(response[key]), lw=1.2, label=label)
-                phase.plot(frequency, phase_deg(response[key]), lw=1.2)
+                phase.plot(frequency, phase_near(response[key], reference), lw=1.2)
         frequency_axis(phase, frequency)
         magnitude.set_title(_channel_label(key), fontsize=9)
         magnitude.set_ylabel(f"[dB re 1 {unit}]", fontsize=8)
