@@ -17,6 +17,7 @@ include: "rules/fit.smk"
 include: "rules/export.smk"
 include: "rules/update.smk"
 include: "rules/diagnose.smk"
+include: "rules/commissioning.smk"
 include: "rules/report.smk"
 
 

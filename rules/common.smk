@@ -369,7 +369,7 @@ DIAGNOSE_OUTPUTS = [
     "diagnosis.md",
     "figures/fingerprint.png",
 ]
-LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png"]
+LEDGER_OUTPUTS = ["ledger.parquet", "ledger.tsv", "figures/ledger.png", "figures/excess_maps.png"]
 
 
 UPDATE_OUTPUTS = [
@@ -427,7 +427,35 @@ def machine_outputs(machine):
     ]
     if identification:
         outputs += [f"results/{machine}/ledger/{name}" for name in LEDGER_OUTPUTS]
+    outputs += [
+        f"results/{machine}/commissioning/{run}/{name}"
+        for run in commissioning_runs(machine)
+        for name in COMMISSIONING_OUTPUTS
+    ]
     return outputs
+
+
+COMMISSIONING_OUTPUTS = [
+    "sensitivity.tsv",
+    "campbell.tsv",
+    "figures/sensitivity.png",
+    "figures/campbell.png",
+    "figures/levitated_modes.png",
+]
+
+
+def commissioning_runs(machine):
+    """Identification runs with a stepped-sine log (its U2 over the known excitation is the measured sensitivity)."""
+    multisine = {run for m, run in identification_runs("multisine") if m == machine}
+    return [
+        run for run in runs_of_machine(machine) if run not in multisine and RUNS[(machine, run)].get("format") != "uff"
+    ]
+
+
+def commissioning_variants(machine):
+    """The model variants drawn beside the measured sensitivity: nominal and the last configured one."""
+    variants = variants_of(machine)
+    return list(dict.fromkeys([variants[0], variants[-1]]))
 
 
 def all_outputs():

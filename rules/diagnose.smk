@@ -81,6 +81,7 @@ rule ledger:
         ledger="results/{machine}/ledger/ledger.parquet",
         table="results/{machine}/ledger/ledger.tsv",
         figure="results/{machine}/ledger/figures/ledger.png",
+        maps="results/{machine}/ledger/figures/excess_maps.png",
     log:
         "logs/{machine}/ledger.log",
     benchmark:

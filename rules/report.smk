@@ -24,6 +24,7 @@ rule report:
         identification_runs=lambda wildcards: runs_of_machine(wildcards.machine),
         multisine_runs=lambda wildcards: [r for m, r in identification_runs("multisine") if m == wildcards.machine],
         variants=lambda wildcards: variants_of(wildcards.machine),
+        commissioning_runs=lambda wildcards: commissioning_runs(wildcards.machine),
         updated=lambda wildcards: bool(config["machines"][wildcards.machine].get("update")),
         captions=CAPTIONS,
         library=LIBRARY_DIGEST,

@@ -69,7 +69,7 @@ def test_second_run_does_nothing_and_a_model_change_reruns_only_downstream(two_r
     # everything that reads the machine file (the log's check against the model, and the FRF made only of a log that
     # passed it), and what follows from it
     assert set(jobs) == {"plausibility", "frf", "calibrate", "calibration_sensitivity", "fit", "export", "update",
-                         "variant", "model", "compare", "diagnose", "ledger", "report", "all"}, jobs
+                         "variant", "model", "commissioning", "compare", "diagnose", "ledger", "report", "all"}, jobs
 
 
 def test_the_report_covers_every_stage_with_thesis_references(two_runs):

@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import LogError
+from .floor import band_labels, frequency_bands
 from .frf import frf_table
 from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
@@ -420,7 +421,7 @@ def bla_frf_table(radial, axial, siso=None):
     return table.assign(systematic_std=distortion["std"].to_numpy())
 
 
-def distortion_levels(spectra, grid_role, frequency_hz, excites, axes=ALL_AXES, bands_hz=DEFAULT_BANDS_HZ):
+def distortion_levels(spectra, grid_role, frequency_hz, excites, axes=ALL_AXES, bands_hz=None):
     """Output levels at the excited, odd-detection and even-detection lines, above the noise (sec. 4.2.7).
 
     Parameters
@@ -433,8 +434,10 @@ def distortion_levels(spectra, grid_role, frequency_hz, excites, axes=ALL_AXES, 
         Axes excited at each line: an output's excited lines are those of its own axis.
     axes : iterable of str
         Position outputs reported.
-    bands_hz : sequence
-        Band edges.
+    bands_hz : sequence, optional
+        Band edges; default: per output, from its excited lines
+        (`ambid.floor.frequency_bands`, 1-2-5 per decade, at least 20 lines a
+        band), so no band lies beyond the measurement or holds a line or two.
 
     Returns
     -------
@@ -449,18 +452,18 @@ def distortion_levels(spectra, grid_role, frequency_hz, excites, axes=ALL_AXES, 
     periods = spectra.shape[2]
     mean = spectra.mean(axis=2)  # (R, E, 20, L)
     noise_power = np.var(spectra, axis=2, ddof=1).real / periods if periods > 1 else np.zeros(mean.shape)
-    edges = np.asarray(bands_hz, dtype=float)
     rows = []
     for axis in axes:
         c = _V2[axis]
         power = np.abs(mean[:, :, c]) ** 2  # (R, E, L)
         noise = noise_power[:, :, c]
         own = excites[:, ALL_AXES.index(axis)]
-        for low, high in zip(edges[:-1], edges[1:]):
+        edges = np.asarray(bands_hz, dtype=float) if bands_hz is not None else frequency_bands(frequency_hz[own])
+        for low, high, label in zip(edges[:-1], edges[1:], band_labels(edges)):
             band = (frequency_hz >= low) & (frequency_hz < high)
             if not (band & own).any():
                 continue
-            row = {"output": f"V2_{axis}", "band": f"{low:g}-{high:g} Hz"}
+            row = {"output": f"V2_{axis}", "band": label}
             for key, pick in (("excited", band & own), ("odd", band & (grid_role == "odd_detection")),
                               ("even", band & (grid_role == "even_detection"))):
                 row[f"{key}_lines"] = int(pick.sum())

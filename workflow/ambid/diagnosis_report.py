@@ -18,7 +18,7 @@ from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
 
-__all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value"]
+__all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value", "share_text"]
 
 
 def effects_config_lines(effects):
@@ -42,6 +42,26 @@ def format_value(value, std):
         return f"{value:.6g}"
     digits = max(0, int(np.floor(np.log10(abs(value)))) - int(np.floor(np.log10(std))) + 2) if value != 0 else 2
     return f"{value:.{min(max(digits, 2), 12)}g} +- {std:.2g}"
+
+
+def share_text(share):
+    """The share of the misfit above the floor a candidate removes, in words where it removes none.
+
+    A candidate fitted alone can leave the misfit larger than the model
+    without it (its parameters are pulled by one band and spoil another); a
+    negative percentage would read as a number to compare, so it is said.
+    """
+    if not np.isfinite(share):
+        return "not computed"
+    if share <= 0:
+        return "none (worse than without it)" if share < -1e-3 else "none"
+    return f"{100 * share:.1f} %"
+
+
+def _marked_bounds(fitted):
+    """``name=value`` of each free parameter, those at a bound of their physical range marked."""
+    return ", ".join(f"{p.name}={v:.6g}" + (" (at its bound)" if p.name in fitted.at_bound else "")
+                     for p, v in zip(fitted.candidate.free, fitted.values))
 
 
 def _cells_text(cells):
@@ -160,7 +180,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
         lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
                   ""]
     lines += ["## Ranking against the model as it is", "",
-              "| rank | candidate | parameters | share above floor | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
+              "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
     for fitted, row in zip(diagnosis.ranked[:shown], table.head(shown).itertuples()):
         if fitted.missing:
             verdict = "missing"
@@ -172,8 +192,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
             verdict = "removes too little"
         else:
             verdict = "model at the floor"
-        share = f"{100 * fitted.share:.1f} %" if fitted.share > -10 else "worse"
-        lines.append(f"| {row.rank} | {row.candidate} | {row.parameters} | {share} | {row.evidence_bic:.4g} | {verdict} |")
+        lines.append(f"| {row.rank} | {row.candidate} | {_marked_bounds(fitted)} | {share_text(fitted.share)} | "
+                     f"{row.evidence_bic:.4g} | {verdict} |")
     lines.append("")
     if diagnosis.sequence and joint is not None:
         lines += ["## Add it", "", "Append to a new variant's `effects:` in config/config.yaml "

@@ -11,6 +11,7 @@ import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.patches  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -18,7 +19,7 @@ from .io import atomic_path  # noqa: E402
 
 __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram", "mode_shapes",
            "calibration_convergence", "youngs_modulus", "update_convergence", "bode_compare", "error_map",
-           "residual_fingerprint", "ledger", "bla_distortion", "method_comparison", "save_figure"]
+           "residual_fingerprint", "ledger", "excess_maps", "sensitivity_zones", "campbell_diagram", "db", "phase_deg", "frequency_axis", "bla_distortion", "method_comparison", "save_figure"]
 
 
 def save_figure(figure, path, dpi=120):
@@ -28,9 +29,77 @@ def save_figure(figure, path, dpi=120):
     plt.close(figure)
 
 
+def db(values):
+    """Magnitude in dB (20 log10 |values|); -inf-free (zero gives NaN, not drawn)."""
+    magnitude = np.abs(np.asarray(values))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(magnitude > 0, 20 * np.log10(np.where(magnitude > 0, magnitude, 1.0)), np.nan)
+
+
+def phase_deg(values):
+    """Phase in degrees, unwrapped along the frequency axis, starting in [-270, 90) deg.
+
+    The field draws a Bode phase continuous: no vertical +-180 degree strokes
+    at the wraps.  The start convention puts an AMB plant's low-frequency phase
+    (negative stiffness: a negative real response) at -180 deg and a
+    well-behaved response at 0, so measured and model curves drawn on the same
+    axes start on the same branch.
+    """
+    phase = np.degrees(np.unwrap(np.angle(np.asarray(values))))
+    if phase.size:
+        phase = phase - 360.0 * np.floor((phase[0] + 270.0) / 360.0)
+    return phase
+
+
+def phase_near(values, reference_deg):
+    """Phase in degrees on the branch of ``reference_deg`` (within 180 deg of it, point by point).
+
+    Measured points unwrapped on their own can take the other branch at an
+    anti-resonance (noise decides whether the phase steps by +180 or -180
+    deg) and end 360 deg away from the model drawn over them; drawn near the
+    model's unwrapped phase they stay on its branch, and what is plotted is
+    the physical phase difference.
+    """
+    reference_deg = np.asarray(reference_deg, dtype=float)
+    return reference_deg + np.degrees(np.angle(np.asarray(values) * np.exp(-1j * np.radians(reference_deg))))
+
+
+def frequency_axis(axis, frequency_hz):
+    """Log frequency axis where the band spans a decade or more (the field's Bode convention), linear below."""
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    positive = frequency_hz[np.isfinite(frequency_hz) & (frequency_hz > 0)]
+    if positive.size and positive.max() >= 10 * positive.min():
+        axis.set_xscale("log")
+
+
+def _phase_axis(axis):
+    axis.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(nbins=6, steps=[4.5, 9]))  # multiples of 45 or 90 deg
+
+
+def _bode_grid(panels, columns=2, width=11.0, height=3.6):
+    """Figure and one (magnitude, phase) pair of axes per panel, laid out ``columns`` wide to be read at page width.
+
+    Panels fill rows left to right; each pair is magnitude above phase sharing
+    the frequency axis; the figure uses constrained layout (no tight_layout).
+    """
+    columns = max(1, min(columns, panels))
+    rows = -(-panels // columns)
+    figure = plt.figure(figsize=(width if columns > 1 else width / 1.7, height * rows + 0.7), layout="constrained")
+    outer = figure.add_gridspec(rows, columns)
+    pairs = []
+    for k in range(panels):
+        inner = outer[divmod(k, columns)].subgridspec(2, 1, height_ratios=[1.3, 1], hspace=0.0)
+        magnitude = figure.add_subplot(inner[0])
+        phase = figure.add_subplot(inner[1], sharex=magnitude)
+        magnitude.tick_params(labelbottom=False)
+        pairs.append((magnitude, phase))
+    return figure, pairs
+
+
 def _bode_axes(magnitude_axis, phase_axis, frequency_hz, values, label=None, **style):
-    magnitude_axis.semilogy(frequency_hz, np.abs(values), label=label, **style)
-    phase_axis.plot(frequency_hz, np.degrees(np.angle(values)), **style)
+    magnitude_axis.plot(frequency_hz, db(values), label=label, **style)
+    phase_axis.plot(frequency_hz, phase_deg(values), **style)
+    frequency_axis(phase_axis, frequency_hz)
 
 
 def bode_matrix(frequency_hz, response, outputs, inputs, title, unit="m/A"):
@@ -43,22 +112,20 @@ def bode_matrix(frequency_hz, response, outputs, inputs, title, unit="m/A"):
     outputs, inputs : sequences of axis names
     """
     n_out, n_in = response.shape[1:]
-    figure, axes = plt.subplots(2, n_in, figsize=(3.2 * n_in + 1, 6), sharex=True, squeeze=False)
-    for j, input_name in enumerate(inputs):
+    figure, pairs = _bode_grid(n_in)
+    for j, (input_name, (magnitude, phase)) in enumerate(zip(inputs, pairs)):
         for i, output_name in enumerate(outputs):
             style = dict(lw=1.6 if i == j else 0.8, ls="-" if i == j else "--")
-            _bode_axes(axes[0, j], axes[1, j], frequency_hz, response[:, i, j], label=f"{output_name}", **style)
-        axes[0, j].set_title(f"input {input_name}")
-        axes[1, j].set_xlabel("frequency [Hz]")
-        axes[0, j].grid(True, which="both", alpha=0.3)
-        axes[1, j].grid(True, alpha=0.3)
-        axes[1, j].set_ylim(-190, 190)
-        axes[1, j].set_yticks([-180, -90, 0, 90, 180])
-    axes[0, 0].set_ylabel(f"|P| [{unit}]")
-    axes[1, 0].set_ylabel("phase [deg]")
-    axes[0, -1].legend(title="output", fontsize=8)
+            _bode_axes(magnitude, phase, frequency_hz, response[:, i, j], label=f"{output_name}", **style)
+        magnitude.set_title(f"input {input_name}", fontsize=9)
+        magnitude.set_ylabel(f"|P| [dB re 1 {unit}]", fontsize=8)
+        phase.set_ylabel("phase [deg]", fontsize=8)
+        phase.set_xlabel("frequency [Hz]")
+        magnitude.grid(True, which="both", alpha=0.3)
+        phase.grid(True, which="both", alpha=0.3)
+        _phase_axis(phase)
+    pairs[0][0].legend(title="output", fontsize=7, title_fontsize=7)
     figure.suptitle(title)
-    figure.tight_layout()
     return figure
 
 
@@ -67,8 +134,9 @@ def bode_siso(frequency_hz, values, title, unit="m/A", markers=False):
     figure, (magnitude_axis, phase_axis) = plt.subplots(2, 1, figsize=(6, 5), sharex=True)
     style = dict(marker=".", ms=3) if markers else {}
     _bode_axes(magnitude_axis, phase_axis, frequency_hz, values, **style)
-    magnitude_axis.set_ylabel(f"|G| [{unit}]")
+    magnitude_axis.set_ylabel(f"|G| [dB re 1 {unit}]")
     phase_axis.set_ylabel("phase [deg]")
+    _phase_axis(phase_axis)
     phase_axis.set_xlabel("frequency [Hz]")
     for axis in (magnitude_axis, phase_axis):
         axis.grid(True, which="both", alpha=0.3)
@@ -97,28 +165,29 @@ def bode_measured(channels, title, unit="m/A", fits=None):
         return figure
     # with fits overlaid, the measurement is points only so that the lines stand out
     measured_style = dict(marker=".", ms=3, lw=0.8) if fits is None else dict(marker=".", ms=3, ls="none", color="C0")
-    figure, axes = plt.subplots(2, len(channels), figsize=(3.4 * len(channels) + 0.6, 5.4), sharex="col", squeeze=False)
-    for k, (label, frequency, values, std) in enumerate(channels):
+    figure, pairs = _bode_grid(len(channels))
+    for k, ((label, frequency, values, std), (magnitude_axis, phase_axis)) in enumerate(zip(channels, pairs)):
         magnitude = np.abs(values)
-        axes[0, k].fill_between(frequency, np.maximum(magnitude - 2 * std, magnitude * 1e-3), magnitude + 2 * std,
-                                alpha=0.25, lw=0, color="C0")
-        axes[0, k].semilogy(frequency, magnitude, label="measured", **measured_style)
-        axes[1, k].plot(frequency, np.degrees(np.angle(values)), **measured_style)
-        for n, (name, model) in enumerate((fits[k] if fits is not None else {}).items(), start=1):
-            axes[0, k].semilogy(frequency, np.abs(model), lw=1.0, color=f"C{n}", label=name)
-            axes[1, k].plot(frequency, np.degrees(np.angle(model)), lw=1.0, color=f"C{n}")
-        axes[0, k].set_title(label)
-        axes[1, k].set_xlabel("frequency [Hz]")
-        axes[1, k].set_ylim(-190, 190)
-        axes[1, k].set_yticks([-180, -90, 0, 90, 180])
-        for axis in axes[:, k]:
+        magnitude_axis.fill_between(frequency, db(np.maximum(magnitude - 2 * std, magnitude * 1e-3)), db(magnitude + 2 * std),
+                                    alpha=0.25, lw=0, color="C0")
+        magnitude_axis.plot(frequency, db(values), label="measured", **measured_style)
+        models = fits[k] if fits is not None else {}
+        reference = phase_deg(next(iter(models.values()))) if models else phase_deg(values)  # the first fit's branch
+        phase_axis.plot(frequency, phase_near(values, reference), **measured_style)
+        for n, (name, model) in enumerate(models.items(), start=1):
+            magnitude_axis.plot(frequency, db(model), lw=1.0, color=f"C{n}", label=name)
+            phase_axis.plot(frequency, phase_near(model, reference), lw=1.0, color=f"C{n}")
+        frequency_axis(phase_axis, frequency)
+        magnitude_axis.set_title(label, fontsize=9)
+        magnitude_axis.set_ylabel(f"|G| [dB re 1 {unit}]", fontsize=8)
+        phase_axis.set_ylabel("phase [deg]", fontsize=8)
+        phase_axis.set_xlabel("frequency [Hz]")
+        _phase_axis(phase_axis)
+        for axis in (magnitude_axis, phase_axis):
             axis.grid(True, which="both", alpha=0.3)
-    axes[0, 0].set_ylabel(f"|G| [{unit}]")
-    axes[1, 0].set_ylabel("phase [deg]")
     if fits is not None:
-        axes[0, 0].legend(fontsize=7, loc="lower left")
+        pairs[0][0].legend(fontsize=7, loc="lower left")
     figure.suptitle(title)
-    figure.tight_layout()
     return figure
 
 
@@ -199,15 +268,21 @@ def calibration_convergence(offsets, tolerance_m, title):
     """
     axes_names = list(dict.fromkeys(offsets["axis"]))
     figure, axes = plt.subplots(1, len(axes_names), figsize=(3.2 * len(axes_names), 3.4), sharey=True, squeeze=False)
+    repetitions = list(dict.fromkeys(offsets["repetition"]))
+    # repetitions often agree to well below a line width: each is shifted sideways a little, with its own marker
+    shift = {r: 0.25 * (k - (len(repetitions) - 1) / 2) / max(len(repetitions) - 1, 1) for k, r in enumerate(repetitions)}
+    markers = "osD^vP*X"
     for axis, name in zip(axes[0], axes_names):
         for repetition, group in offsets[offsets["axis"] == name].groupby("repetition"):
-            axis.plot(group["iteration"], group["offset_m"] * 1e6, marker="o", ms=3, lw=1, label=f"rep. {repetition}")
+            k = repetitions.index(repetition)
+            axis.plot(group["iteration"] + shift[repetition], group["offset_m"] * 1e6, marker=markers[k % len(markers)],
+                      ms=3.5, lw=1, alpha=0.85, label=f"rep. {repetition}")
         axis.axhspan(-tolerance_m * 1e6, tolerance_m * 1e6, color="green", alpha=0.15)
         axis.set_title(name)
         axis.set_xlabel("iteration")
         axis.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         axis.grid(True, alpha=0.3)
-    axes[0, 0].set_ylabel("offset x_c [um]")
+    axes[0, 0].set_ylabel("offset x_c [um] (repetitions shifted sideways)")
     axes[0, -1].legend(fontsize=7)
     figure.suptitle(title)
     figure.tight_layout()
@@ -270,8 +345,9 @@ def update_convergence(history, chosen_start, title):
 
 
 def _channel_label(key):
+    """The one channel name used in text, tables and figures: ``output/input`` (e.g. ``DX/NX``, ``I_NX/NX``)."""
     output, input_axis = key
-    return f"{output} / U2_{input_axis}" if output.startswith("I_") else f"{output} / {input_axis}"
+    return f"{output}/{input_axis}"
 
 
 def bode_compare(measured, models, channels, title):
@@ -283,79 +359,174 @@ def bode_compare(measured, models, channels, title):
     models : dict label -> {(output, input): values}
     channels : list of (output, input), one row of (magnitude, phase) each
     """
-    figure, axes = plt.subplots(len(channels), 2, figsize=(11, 2.1 * len(channels) + 0.8), squeeze=False)
-    for row, key in enumerate(channels):
+    figure, pairs = _bode_grid(len(channels))
+    for key, (magnitude, phase) in zip(channels, pairs):
         frequency, values, std = measured[key]
         unit = "A/A" if key[0].startswith("I_") else "m/A"
-        magnitude, phase = axes[row]
-        magnitude.fill_between(frequency, np.maximum(np.abs(values) - 2 * std, 1e-3 * np.abs(values)), np.abs(values) + 2 * std,
-                               color="0.8", label="measured +-2 sigma")
-        magnitude.semilogy(frequency, np.abs(values), "k.", ms=2.5, label="measured")
-        band_deg = np.degrees(np.minimum(2 * std / np.maximum(np.abs(values), 1e-300), np.pi))
-        measured_phase = np.degrees(np.angle(values))
+        size = np.abs(values)
+        magnitude.fill_between(frequency, db(np.maximum(size - 2 * std, 1e-3 * size)), db(size + 2 * std), color="0.8",
+                               label="measured +-2 sigma")
+        magnitude.plot(frequency, db(values), "k.", ms=2.5, label="measured")
+        band_deg = np.degrees(np.minimum(2 * std / np.maximum(size, 1e-300), np.pi))
+        drawn = [response[key] for response in models.values() if key in response]
+        reference = phase_deg(drawn[0]) if drawn else phase_deg(values)  # the first model's branch for every curve
+        measured_phase = phase_near(values, reference)
         phase.fill_between(frequency, measured_phase - band_deg, measured_phase + band_deg, color="0.8")
         phase.plot(frequency, measured_phase, "k.", ms=2.5)
         for label, response in models.items():
             if key in response:
-                magnitude.semilogy(frequency, np.abs(response[key]), lw=1.2, label=label)
-                phase.plot(frequency, np.degrees(np.angle(response[key])), lw=1.2)
-        magnitude.set_ylabel(f"|{_channel_label(key)}| [{unit}]", fontsize=8)
-        phase.set_ylabel("phase [deg]")
-        phase.set_ylim(-190, 190)
-        phase.set_yticks([-180, -90, 0, 90, 180])
+                magnitude.plot(frequency, db(response[key]), lw=1.2, label=label)
+                phase.plot(frequency, phase_near(response[key], reference), lw=1.2)
+        frequency_axis(phase, frequency)
+        magnitude.set_title(_channel_label(key), fontsize=9)
+        magnitude.set_ylabel(f"[dB re 1 {unit}]", fontsize=8)
+        phase.set_ylabel("phase [deg]", fontsize=8)
+        phase.set_xlabel("frequency [Hz]")
+        _phase_axis(phase)
         for axis in (magnitude, phase):
             axis.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=7, loc="best")
-    for axis in axes[-1]:
-        axis.set_xlabel("frequency [Hz]")
+    pairs[0][0].legend(fontsize=7, loc="best")
     figure.suptitle(title)
-    figure.tight_layout()
     return figure
 
 
+# One fixed colour scale for every misfit map of every report, so colours compare across variants and machines:
+# chi2 per point (|G_model - G_meas|^2 / sigma^2 averaged) from 0.1 to 1e4 on a log scale, everything at or below the
+# floor of 1 in one pale green, above it magma from pale to black; NaN (not measured) shows a grey hatch.
+MISFIT_RANGE = (0.1, 1e4)
+
+
+def _misfit_colours():
+    low = np.log10(MISFIT_RANGE[0])
+    share = (0 - low) / (np.log10(MISFIT_RANGE[1]) - low)  # where 1 sits on the scale
+    below = int(round(256 * share))
+    colours = np.vstack([np.tile(matplotlib.colors.to_rgba("#d4ecd4"), (below, 1)),
+                         plt.get_cmap("magma_r")(np.linspace(0.08, 1.0, 256 - below))])
+    cmap = matplotlib.colors.ListedColormap(colours).with_extremes(bad=(0, 0, 0, 0))
+    return cmap, matplotlib.colors.LogNorm(*MISFIT_RANGE, clip=True)
+
+
+def _not_measured_background(axis):
+    axis.set_facecolor("0.93")
+    axis.add_patch(matplotlib.patches.Rectangle((0, 0), 1, 1, transform=axis.transAxes, facecolor="none",
+                                                edgecolor="0.6", hatch="///", lw=0, zorder=0))
+
+
+def _misfit_colorbar(figure, image, axes, label):
+    bar = figure.colorbar(image, ax=axes, extend="both", label=label, fraction=0.04, pad=0.02)
+    bar.ax.axhline(1.0, color="k", lw=2)
+    ticks = [t for t in (0.1, 1, 10, 100, 1e3, 1e4, 1e5, 1e6) if MISFIT_RANGE[0] <= t <= MISFIT_RANGE[1]]
+    bar.set_ticks(ticks, labels=["1 = floor" if t == 1 else f"{t:g}" for t in ticks])
+    figure.legend(handles=[Patch(facecolor="0.93", edgecolor="0.6", hatch="///", label="not measured")], fontsize=7,
+                  loc="lower right", frameon=False)
+    return bar
+
+
 def error_map(errors, title):
-    """Channel x frequency map of the normalized error |G_model - G_meas| / sigma (log colour scale)."""
+    """Channel x frequency map of the squared normalized error |G_model - G_meas|^2 / sigma^2.
+
+    On the one fixed scale of `MISFIT_RANGE` (the floor at 1 marked), the same
+    for every variant, so a colour means the same misfit on every map.
+    """
     channels = list(dict.fromkeys(zip(errors["output"], errors["input"])))
-    figure, axis = plt.subplots(figsize=(10, 0.32 * len(channels) + 1.8))
-    norm = matplotlib.colors.LogNorm(vmin=0.1, vmax=max(10.0, float(errors["normalized_error"].max())))
+    figure, axis = plt.subplots(figsize=(10, 0.3 * len(channels) + 1.8), layout="constrained")
+    cmap, norm = _misfit_colours()
+    _not_measured_background(axis)
     image = None
     for row, (output, input_axis) in enumerate(channels):
         part = errors[(errors["output"] == output) & (errors["input"] == input_axis)].sort_values("frequency_hz")
         frequency = part["frequency_hz"].to_numpy()
         edges = np.concatenate([[frequency[0]], 0.5 * (frequency[1:] + frequency[:-1]), [frequency[-1]]])
-        image = axis.pcolormesh(edges, [row - 0.5, row + 0.5], np.maximum(part["normalized_error"].to_numpy(), 0.1)[None, :],
-                                norm=norm, cmap="magma_r", shading="flat")
+        image = axis.pcolormesh(edges, [row - 0.5, row + 0.5], (part["normalized_error"].to_numpy() ** 2)[None, :],
+                                norm=norm, cmap=cmap, shading="flat")
+    frequency_axis(axis, errors["frequency_hz"])
     axis.set_yticks(range(len(channels)))
     axis.set_yticklabels([_channel_label(c) for c in channels], fontsize=7)
-    axis.invert_yaxis()
+    axis.set_ylim(len(channels) - 0.5, -0.5)
     axis.set_xlabel("frequency [Hz]")
-    figure.colorbar(image, ax=axis, label="|G_model - G_meas| / sigma  (1 = noise floor)")
+    _misfit_colorbar(figure, image, axis, "|G_model - G_meas|^2 / sigma^2  (1 = floor)")
     axis.set_title(title)
-    figure.tight_layout()
+    return figure
+
+
+def _band_edges(label):
+    """``'20-50 Hz'`` -> (20.0, 50.0); an open band (``inf``) is drawn one octave wide."""
+    low, high = (float(x) for x in str(label).replace("Hz", "").split("-"))
+    return low, high if np.isfinite(high) else 2 * low
+
+
+def _compact(value):
+    return f"{value:.2g}".replace("e+0", "e").replace("e+", "e")
+
+
+def excess_maps(summaries, title, columns=2):
+    """Channel x band chi2 per point of every variant, one panel each, on the one fixed scale (`MISFIT_RANGE`).
+
+    Each band is drawn over the frequencies it spans (log axis), so channel
+    families with different bands (each derived from its measured grid,
+    `ambid.floor.frequency_bands`) line up; where a channel has no band the
+    cell is hatched (not measured), never white.
+
+    Parameters
+    ----------
+    summaries : dict label -> pandas.DataFrame
+        `ambid.compare.summarize` tables (``output``, ``input``, ``band``,
+        ``points``, ``chi2``); the ``all`` band is left out.
+    """
+    parts = {label: frame[(frame["band"] != "all") & (frame["output"] != "all")] for label, frame in summaries.items()}
+    channels = list(dict.fromkeys(key for frame in parts.values() for key in zip(frame["output"], frame["input"])))
+    edges = [_band_edges(b) for frame in parts.values() for b in frame["band"]]
+    span = (min(e[0] for e in edges), max(e[1] for e in edges))
+    columns = max(1, min(columns, len(parts)))
+    rows = -(-len(parts) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(5.0 * columns + 1.2, (0.24 * len(channels) + 1.2) * rows + 0.6),
+                                squeeze=False, layout="constrained")
+    cmap, norm = _misfit_colours()
+    image = None
+    for axis, (label, frame) in zip(axes.flat, parts.items()):
+        _not_measured_background(axis)
+        for row in frame[frame["points"] > 0].itertuples():
+            i = channels.index((row.output, row.input))
+            low, high = _band_edges(row.band)
+            image = axis.pcolormesh([low, high], [i - 0.5, i + 0.5], [[row.chi2]], cmap=cmap, norm=norm, shading="flat",
+                                    edgecolors="white", linewidth=0.3)
+            axis.text(np.sqrt(low * high) if low > 0 else 0.5 * high, i, _compact(row.chi2), ha="center", va="center",
+                      fontsize=5.5, color="white" if row.chi2 > 300 else "black")
+        axis.set_xscale("log" if span[0] > 0 else "linear")
+        axis.set_xlim(*span)
+        axis.set_xlabel("frequency [Hz] (cells: the bands of each channel family)", fontsize=7)
+        axis.set_yticks(range(len(channels)))
+        axis.set_yticklabels([_channel_label(c) for c in channels], fontsize=6.5)
+        axis.set_ylim(len(channels) - 0.5, -0.5)
+        axis.set_title(label, fontsize=9)
+    for axis in list(axes.flat)[len(parts):]:
+        axis.set_axis_off()
+    figure.suptitle(title)
+    _misfit_colorbar(figure, image, axes, "chi2 per point")
     return figure
 
 
 def residual_fingerprint(measured, model, predicted, channels, title, candidate_label):
     """The residual ``G_meas / G_model`` (points) beside what the best candidate predicts, ``G_candidate / G_model``."""
-    figure, axes = plt.subplots(2, len(channels), figsize=(3.0 * len(channels) + 1, 5.4), squeeze=False, sharex="col")
-    for column, key in enumerate(channels):
+    figure, pairs = _bode_grid(len(channels))
+    for key, (magnitude, phase) in zip(channels, pairs):
         frequency, values, _ = measured[key]
         ratio = values / model[key]
-        axes[0, column].plot(frequency, 20 * np.log10(np.abs(ratio)), "k.", ms=2.5, label="measured / model")
-        axes[1, column].plot(frequency, np.degrees(np.angle(ratio)), "k.", ms=2.5)
+        magnitude.plot(frequency, db(ratio), "k.", ms=2.5, label="measured / model")
+        phase.plot(frequency, phase_deg(ratio), "k.", ms=2.5)
         if predicted is not None:
             change = predicted[key] / model[key]
-            axes[0, column].plot(frequency, 20 * np.log10(np.abs(change)), "C3", lw=1.4, label=f"{candidate_label} / model")
-            axes[1, column].plot(frequency, np.degrees(np.angle(change)), "C3", lw=1.4)
-        axes[0, column].set_title(_channel_label(key), fontsize=9)
-        axes[1, column].set_xlabel("frequency [Hz]")
-        for axis in axes[:, column]:
-            axis.grid(True, alpha=0.3)
-    axes[0, 0].set_ylabel("magnitude ratio [dB]")
-    axes[1, 0].set_ylabel("phase difference [deg]")
-    axes[0, 0].legend(fontsize=7)
+            magnitude.plot(frequency, db(change), "C3", lw=1.4, label=f"{candidate_label} / model")
+            phase.plot(frequency, phase_deg(change), "C3", lw=1.4)
+        frequency_axis(phase, frequency)
+        magnitude.set_title(_channel_label(key), fontsize=9)
+        magnitude.set_ylabel("ratio [dB]", fontsize=8)
+        phase.set_ylabel("phase diff. [deg]", fontsize=8)
+        phase.set_xlabel("frequency [Hz]")
+        for axis in (magnitude, phase):
+            axis.grid(True, which="both", alpha=0.3)
+    pairs[0][0].legend(fontsize=7)
     figure.suptitle(title)
-    figure.tight_layout()
     return figure
 
 
@@ -459,4 +630,92 @@ def method_comparison(runs, channel_label, title):
         axis.legend(fontsize=7)
     figure.suptitle(title)
     figure.tight_layout()
+    return figure
+
+
+def sensitivity_zones(measured, models, zone_limits_db, title, columns=2):
+    """Measured output sensitivity ``|U2/Eu|`` per axis beside the models', with the ISO 14839-3 zone limits.
+
+    Parameters
+    ----------
+    measured : dict axis -> (frequency_hz, sensitivity, std)
+    models : dict label -> {axis: (frequency_hz, sensitivity)}
+    zone_limits_db : sequence of (limit_db, zone)
+        Upper limit of each zone (A, B, C); above the last is D.
+    """
+    axes_names = list(measured) or sorted({a for curves in models.values() for a in curves})
+    columns = max(1, min(columns, len(axes_names)))
+    rows = -(-len(axes_names) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(5.5 * columns, 3.0 * rows + 0.6), squeeze=False,
+                                layout="constrained")
+    shades = ("#d4ecd4", "#fff3c4", "#ffd8b0", "#f4b6b6")
+    for axis, name in zip(axes.flat, axes_names):
+        lower = -60.0
+        for (limit, zone), shade in zip(list(zone_limits_db) + [(60.0, "D")], shades):
+            axis.axhspan(lower, limit, color=shade, lw=0, zorder=0)
+            axis.text(1.01, min(limit, 18) - 0.4, zone, transform=axis.get_yaxis_transform(), fontsize=7, va="top")
+            lower = limit
+        for limit, _ in zone_limits_db:
+            axis.axhline(limit, color="0.4", lw=0.6, ls="--")
+        for k, (label, curves) in enumerate(models.items(), start=1):
+            if name in curves:
+                frequency, values = curves[name]
+                axis.plot(frequency, db(values), lw=1.2, color=f"C{k}", label=f"model {label}")
+        if name in measured:
+            frequency, values, std = measured[name]
+            size = np.abs(values)
+            axis.fill_between(frequency, db(np.maximum(size - 2 * std, 1e-3 * size)), db(size + 2 * std), color="0.6",
+                              alpha=0.5, lw=0)
+            axis.plot(frequency, db(values), "k.", ms=2.5, label="measured |U2/Eu| (+-2 sigma)")
+            peak = int(np.argmax(size))
+            axis.plot(frequency[peak], db(size[peak]), "kv", ms=6)
+            axis.annotate(f"{db(size[peak]):.1f} dB at {frequency[peak]:.0f} Hz", (frequency[peak], db(size[peak])),
+                          textcoords="offset points", xytext=(4, 6), fontsize=7)
+        frequency_axis(axis, np.concatenate([c[name][0] for c in models.values() if name in c]
+                                            + ([measured[name][0]] if name in measured else [])))
+        axis.set_ylim(-20, 18)
+        axis.set_title(f"axis {name}", fontsize=9)
+        axis.set_ylabel("|S| [dB]", fontsize=8)
+        axis.set_xlabel("frequency [Hz]", fontsize=8)
+        axis.grid(True, which="both", alpha=0.3)
+    for axis in list(axes.flat)[len(axes_names):]:
+        axis.set_axis_off()
+    axes.flat[0].legend(fontsize=7, loc="lower right")
+    figure.suptitle(title)
+    return figure
+
+
+def campbell_diagram(modes, measured_hz, max_frequency_hz, title):
+    """Closed-loop natural frequencies over rotor speed with the synchronous line and the modes measured at standstill.
+
+    Parameters
+    ----------
+    modes : pandas.DataFrame
+        `ambid.commissioning.campbell`: ``speed_rpm``, ``frequency_hz``, ``whirl``.
+    measured_hz : array
+        Resonances identified at standstill, marked at speed 0.
+    """
+    figure, axis = plt.subplots(figsize=(8, 5), layout="constrained")
+    styles = {"forward": ("^", "C3", "forward whirl"), "backward": ("v", "C0", "backward whirl"),
+              "planar": ("o", "0.3", "standstill (planar)")}
+    for whirl, (marker, colour, label) in styles.items():
+        part = modes[modes["whirl"] == whirl]
+        if not part.empty:
+            axis.plot(part["speed_rpm"], part["frequency_hz"], marker, color=colour, ms=3, ls="none", label=label)
+    other = modes[~modes["whirl"].isin(list(styles))]
+    if not other.empty:
+        axis.plot(other["speed_rpm"], other["frequency_hz"], ".", color="0.6", ms=3, ls="none", label="other")
+    speeds = np.linspace(0, float(modes["speed_rpm"].max()) if not modes.empty else 1.0, 50)
+    axis.plot(speeds, speeds / 60, "k-", lw=1.0, label="1x (synchronous)")
+    measured_hz = np.asarray(measured_hz, dtype=float)
+    if measured_hz.size:
+        axis.plot(np.zeros_like(measured_hz), measured_hz, "*", color="C2", ms=10, mec="k", mew=0.5, clip_on=False,
+                  label="identified at standstill (fit)", zorder=5)
+    axis.set_ylim(0, max_frequency_hz)
+    axis.set_xlim(left=0)
+    axis.set_xlabel("rotor speed [rpm]")
+    axis.set_ylabel("closed-loop natural frequency [Hz]")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize=7, loc="upper left")
+    axis.set_title(title)
     return figure

@@ -476,12 +476,13 @@ def comparison_rows(problem, original, updated):
     rows = []
     for i, row in problem.measured.iterrows():
         kind = "resonance" if row["root"] == "pole" else "anti-resonance"
-        channel = f"{row['input']}({THESIS_INDEX[row['input']]},{THESIS_INDEX[row['output']]})"
+        channel = f"{row['output']}/{row['input']}"  # the one channel name of the report; the thesis' in its own column
+        thesis = f"{row['input']}({THESIS_INDEX[row['input']]},{THESIS_INDEX[row['output']]})"
         ordinal = ORDINALS.get(int(row["number"]), f"#{int(row['number'])}")
         for quantity, unit, measured, std, before, after in (
                 ("frequency", "Hz", row["frequency_hz"], row["frequency_std_hz"], f0[i], f1[i]),
                 ("damping ratio", "-", row["damping_ratio"], row["damping_std"], z0[i], z1[i])):
-            rows.append({"feature": f"{channel} {ordinal} {kind} {quantity}", "output": row["output"],
+            rows.append({"feature": f"{channel} {ordinal} {kind} {quantity}", "thesis_channel": thesis, "output": row["output"],
                          "input": row["input"], "root": row["root"], "number": int(row["number"]), "quantity": quantity,
                          "unit": unit, "measured": measured, "measured_std": std, "original": before,
                          "original_error_pct": 100 * abs(before - measured) / measured, "updated": after,

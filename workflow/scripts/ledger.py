@@ -3,15 +3,16 @@
 import pandas as pd
 
 from ambid.io import read_tsv, rule_log, write_parquet, write_tsv
-from ambid.plots import ledger, save_figure
+from ambid.plots import excess_maps, ledger, save_figure
 
 log = rule_log(snakemake.log[0], "ledger")
 
 machine = snakemake.wildcards.machine
-parts = []
+parts, maps = [], {}
 for path, verdict_path, run, variant in zip(snakemake.input.summaries, snakemake.input.verdicts, snakemake.params.runs,
                                             snakemake.params.variants):
     summary = read_tsv(path)
+    maps[f"{variant} against {run}"] = summary
     summary = summary[summary["band"] == "all"].drop(columns="band")
     verdict = read_tsv(verdict_path).fillna("").iloc[0]
     text = {"missing": f"missing: {verdict['effects']}", "retune": f"retune: {verdict['retune']}",
@@ -29,3 +30,5 @@ for row in table[table["output"] == "all"].itertuples():
     log.info("%s %-12s chi2 per point %10.4g  excess %10.4g  rms %.3f dB %.2f deg", row.run, row.variant, row.chi2, row.excess,
              row.rms_magnitude_db, row.rms_phase_deg)
 save_figure(ledger(table, f"{machine}: misfit of each model variant"), snakemake.output.figure, snakemake.params.dpi)
+save_figure(excess_maps(maps, f"{machine}: chi2 per point by channel and band, every variant (one colour scale)"),
+            snakemake.output.maps, snakemake.params.dpi)
