@@ -128,6 +128,12 @@ def test_joint_refit_moves_what_the_variant_has_wrong(demo):
     assert not diagnosis.cells_after["above_floor"].any()
     correlation = diagnosis.joint.correlation
     assert correlation.shape == (2, 2) and np.allclose(np.diag(correlation), 1.0)
+    # a retune that ends at its search bound is said to be a limit, on the page and in the findings
+    diagnosis.retune = diagnosis.retune.assign(at_bound=True)
+    _, page = diagnosis_report(diagnosis, Plant(model), measured, None, "retune at a bound")
+    assert "amplifier_lowpass.cutoff_hz`: 1775 -> " in page and "at its search bound" in page
+    retunes = [f for f in diagnosis_findings(diagnosis) if f.code == "retune"]
+    assert retunes and all("at its search bound" in f.message for f in retunes)
 
 
 def test_joint_refit_keeps_what_the_data_do_not_determine(demo):

@@ -21,6 +21,10 @@ from .fingerprint import fingerprint, where_it_helps
 __all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value", "share_text"]
 
 
+#: Said of a retuned parameter that ended at its search bound: the data push it beyond what the refit allows.
+_AT_BOUND = " (at its search bound: the data want it further, so the value is a limit, not an estimate)"
+
+
 def effects_config_lines(effects):
     """The ``effects:`` lines to add to a machine config (YAML), every parameter with all its digits.
 
@@ -89,8 +93,8 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
     if diagnosis.retune is not None:
         for row in diagnosis.retune.itertuples():
             out.append(Finding(stage, "warning", "retune", row.parameter,
-                               f"the data move {row.parameter} from {row.start:.6g} to {format_value(row.value, row.std)}",
-                               row.value))
+                               f"the data move {row.parameter} from {row.start:.6g} to {format_value(row.value, row.std)}"
+                               + (_AT_BOUND if row.at_bound else ""), row.value))
     for fitted in diagnosis.ranked:
         if fitted.significant and fitted.at_bound and fitted.share >= 0.1:
             out.append(Finding(stage, "note", "candidate_at_bound", fitted.candidate.label,
@@ -159,7 +163,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
                       "the measurement.", ""]
     if diagnosis.retune is not None and not diagnosis.retune.empty:
         lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations):", ""]
-        lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" for r in diagnosis.retune.itertuples()]
+        lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" + (_AT_BOUND if r.at_bound else "")
+                  for r in diagnosis.retune.itertuples()]
         lines += ["", "Set them where the variant takes them (its machine file, variant or update)." , ""]
     unexplained = diagnosis.unexplained
     if not unexplained.empty:
