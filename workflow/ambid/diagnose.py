@@ -664,12 +664,11 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     started = evaluator.evaluations
     own_columns, new_columns = np.flatnonzero(prior), np.flatnonzero(~prior)
     lower_inside, upper_inside = lower + 1e-9 * span, upper - 1e-9 * span
-    x = begin
-    objective = float(np.sum(residual(x) ** 2))
+    x, at_x = begin, data(begin)
+    objective = float(np.sum(at_x**2) + np.sum((prior_scale * (x - x0)[prior]) ** 2))
     for _ in range(4):
         basis = np.zeros((own_columns.size, 0))
         if own_columns.size:
-            at_x = data(x)
             _, singular, directions = np.linalg.svd(_forward_jacobian(data, x, at_x, own_columns, lower, upper),
                                                     full_matrices=False)
             # the standard deviation along each right singular direction at the floor is sqrt(0.5) / s (`_covariance`
@@ -692,7 +691,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             x_scale=np.concatenate([np.ones(basis.shape[1]), np.minimum(span[new_columns] / 10, 1.0)]),
             diff_step=1e-4, method="trf", max_nfev=settings.max_evaluations, xtol=1e-8, ftol=1e-10)
         improvement = objective - 2 * solution.cost
-        x, objective = expand(solution.x), 2 * solution.cost
+        # the solution's residual holds the data's part at the new point: no evaluation again
+        x, at_x, objective = expand(solution.x), solution.fun[: 2 * points], 2 * solution.cost
         if not own_columns.size or improvement < 1e-3 * max(objective, 1.0):
             break
     effects = build(x)

@@ -52,18 +52,23 @@ def effect_signature(machine, effects):
     return worst
 
 
-def _weak_end(machine, build, strong, weak, target=3.0):
-    """The strength between ``strong`` and ``weak`` (log scale) where the signature falls to ``target``."""
-    lo, hi = np.log(strong), np.log(weak)
-    if effect_signature(machine, [build(weak)]) >= target:
-        return weak
-    for _ in range(30):
+def _log_bisection(holds, inside, outside, steps):
+    """The last value where ``holds`` is true, bisecting on a log scale from ``inside`` (true) towards ``outside``."""
+    lo, hi = np.log(inside), np.log(outside)
+    for _ in range(steps):
         mid = 0.5 * (lo + hi)
-        if effect_signature(machine, [build(np.exp(mid))]) >= target:
+        if holds(np.exp(mid)):
             lo = mid
         else:
             hi = mid
     return float(np.exp(lo))
+
+
+def _weak_end(machine, build, strong, weak, target=3.0):
+    """The strength between ``strong`` and ``weak`` (log scale) where the signature falls to ``target``."""
+    if effect_signature(machine, [build(weak)]) >= target:
+        return weak
+    return _log_bisection(lambda v: effect_signature(machine, [build(v)]) >= target, strong, weak, 30)
 
 
 def _admissible(plant):
@@ -86,16 +91,14 @@ def _admissible_end(machine, build, strong, end):
     from .diagnose import plant_with_effects
 
     plant = Plant(machine)
-    if _admissible(plant_with_effects(plant, [build(strong)])):
+
+    def admissible(strength):
+        return _admissible(plant_with_effects(plant, [build(strength)]))
+
+    if admissible(strong):
         return strong
-    lo, hi = np.log(end), np.log(strong)  # admissible, not admissible
-    for _ in range(24):
-        mid = 0.5 * (lo + hi)
-        if _admissible(plant_with_effects(plant, [build(np.exp(mid))])):
-            lo = mid
-        else:
-            hi = mid
-    return float(np.exp(lo + 0.1 * (np.log(end) - lo)))
+    boundary = np.log(_log_bisection(admissible, end, strong, 24))
+    return float(np.exp(boundary + 0.1 * (np.log(end) - boundary)))
 
 
 def hidden_effect_draws(machine_config, seed=2026, target=3.0):
