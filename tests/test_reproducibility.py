@@ -21,6 +21,12 @@ def small_configuration(config):
     config["diagnose"]["sequence_length"] = 1
 
 
+def coarser_grid(as_built):
+    """The identification planned on 120 + 40 steps from 5 Hz (the rig's as-built drawing: 250 + 100 from 1 Hz)."""
+    as_built["frequency_grid"] = {"radial": {"start_hz": 5.0, "stop_hz": 1000.0, "points": 120},
+                                  "axial": {"start_hz": 5.0, "stop_hz": 100.0, "points": 40}}
+
+
 def job_counts(output):
     """Rule -> number of jobs from the 'Job stats' table of a dry run (empty when there is nothing to be done)."""
     if "Job stats:" not in output:
@@ -37,6 +43,10 @@ def two_runs(tmp_path_factory):
         workdir = tmp_path_factory.mktemp(name)
         shutil.copytree(ROOT / "config", workdir / "config")
         edit_config(workdir, small_configuration)
+        path = workdir / "config/rigs/demo20.as_built.yaml"
+        as_built = yaml.safe_load(path.read_text())
+        coarser_grid(as_built)
+        path.write_text(yaml.safe_dump(as_built))
         result = snakemake(workdir, "--cores", "2")
         assert result.returncode == 0, result.stderr[-3000:]
         directories.append(workdir)
@@ -80,7 +90,9 @@ def test_the_report_covers_every_stage_with_thesis_references(two_runs):
     for reference in ("Fig. 6.2", "Table 6.3", "Fig. 6.3", "Fig. 6.6", "Fig. 6.8", "Fig. 6.9", "Table 6.4"):
         assert reference in page, reference
     figures = page.count('src="data:image/png;base64,')
-    assert figures >= 20 and "http" not in page.split("<body>", 1)[1]  # embedded, nothing fetched
+    # embedded, nothing fetched (the embedded figures' base64 may spell "http" by chance: look outside them)
+    body = re.sub(r'data:image/png;base64,[A-Za-z0-9+/=]+', "", page.split("<body>", 1)[1])
+    assert figures >= 20 and "http" not in body
     assert "<strong>Missing" in page or "Nothing is missing at the floor" in page or "Unexplained misfit" in page  # rendered
     # where the log and the fit are quoted: the checks against the model and the findings (none on this run)
     assert "The log against the nominal model" in page and "Findings of the log of run <code>ident01</code>" in page

@@ -229,11 +229,9 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
     recordings = np.empty((20, offsets[-1]))  # the measurement windows, one segment per step
     rng = np.random.default_rng(seed) if noise else None
 
-    ids = np.arange(n_steps)  # batch member -> step
     amplitude = plan.initial_amplitude_a.astype(float).copy()
     attempts = np.ones(n_steps, dtype=int)
-    counter = np.zeros(n_steps, dtype=int)  # cycles into the current attempt
-    elapsed = np.zeros(n_steps, dtype=int)  # cycles since the step's excitation started
+    elapsed = np.zeros(n_steps, dtype=int)  # cycles since the step's excitation started (kept here at compaction)
     state = rig_model.initial_state(n_steps)
     omega_t = 2 * np.pi * exact * t
     records = [None] * n_steps
@@ -243,30 +241,34 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
     finished = np.zeros(n_steps, dtype=bool)
     accepted_count = {a: 0 for a in settings.axes}
     cycles = member_cycles = 0
+    # the batch, member by member (a step's id, its per-cycle constants and counters), taken anew at each compaction
+    ids = np.arange(n_steps)
+    batch = _Batch(ids, axis_index, omega_t, settle, measure, offsets, amplitude)
     while ids.size:
-        live = ids
-        excitation = np.zeros((len(ALL_AXES), live.size))
-        excitation[axis_index[live], np.arange(live.size)] = amplitude[live] * np.sin(omega_t[live] * elapsed[live])
+        excitation = np.zeros((len(ALL_AXES), ids.size))
+        excitation[batch.axis, batch.member] = batch.amplitude * np.sin(batch.omega_t * batch.elapsed)
         channels = rig_model.step(state, excitation, rng)
-        window = counter[live] - settle[live]
-        measuring = (window >= 0) & (window < measure[live]) & ~finished[live]
+        window = batch.counter - batch.settle
+        measuring = (window >= 0) & (window < batch.measure) & batch.active
         if measuring.any():
-            columns = offsets[live[measuring]] + window[measuring]
-            recordings[:, columns] = channels[:, measuring]
-        counter[live] += 1
-        elapsed[live] += 1
+            recordings[:, batch.offset[measuring] + window[measuring]] = channels[:, measuring]
+        batch.counter += 1
+        batch.elapsed += 1
         cycles += 1
-        member_cycles += live.size
-        done = (counter[live] == settle[live] + measure[live]) & ~finished[live]
+        member_cycles += ids.size
+        done = (batch.counter == batch.end) & batch.active
         if done.any():
-            repeated = live[done][repeating[live[done]]]
-            for step in repeated:  # a repeat ends the step, without adaptation
+            members = np.flatnonzero(done)
+            elapsed[ids[members]] = batch.elapsed[members]
+            for member in members[repeating[ids[members]]]:  # a repeat ends the step, without adaptation
+                step = ids[member]
                 repeats[step] = _evaluate(step, recordings[:, offsets[step] : offsets[step + 1]], periods[step], exact[step],
                                           elapsed[step] - measure[step], t, axis_index[step], amplitude[step], attempts[step],
                                           plan, level=1)
                 repeats[step]["in_band"] = True  # measured at the lower level on purpose
                 finished[step] = True
-            adapting = live[done][~repeating[live[done]]]
+            members = members[~repeating[ids[members]]]
+            adapting = ids[members]
             for step in adapting:
                 records[step] = _evaluate(step, recordings[:, offsets[step] : offsets[step + 1]], periods[step], exact[step],
                                           elapsed[step] - measure[step], t, axis_index[step], amplitude[step], attempts[step], plan)
@@ -279,24 +281,51 @@ def run_stepped_sine(rig_model, plan, settings, seed=0, noise=True, progress=Non
                     accepted_count[plan.axis[step]] += 1
                     repeating[step] = True
                     amplitude[step] = amplitude[step] * settings.repeat_ratio
-                    counter[step] = 0
                 elif ok:
                     finished[step] = True
                     accepted_count[plan.axis[step]] += 1
                 else:
                     amplitude[step] = value
                     attempts[step] += 1
-                    counter[step] = 0
+            restarted = members[~finished[adapting]]  # a new attempt or the repeat: from the start of its settling
+            batch.counter[restarted] = 0
+            batch.amplitude[restarted] = amplitude[ids[restarted]]
+            batch.active = ~finished[ids]
             if progress is not None and accepted.any():
                 progress(dict(accepted_count), cycles * t)
-        if cycles % compact_every == 0:
-            keep = ~finished[ids]
-            if not keep.all():
-                ids = ids[keep]
-                state = state.take(keep)
+        if cycles % compact_every == 0 and not batch.active.all():
+            elapsed[ids] = batch.elapsed
+            keep = batch.active
+            ids = ids[keep]
+            batch = batch.take(keep)
+            state = state.take(keep)
     experiment_s = float(np.sum(elapsed) * t)
     records = records + [r for r in repeats if r is not None]
     return records, {"cycles": cycles, "simulated_s": cycles * t, "experiment_s": experiment_s, "member_cycles": member_cycles}
+
+
+class _Batch:
+    """The members of `run_stepped_sine`'s batch: per member, its step's constants (excited axis row, omega T,
+    settling and measuring cycles, recording offset), its amplitude and its cycle counters, in batch order, so the
+    per-cycle loop reads them without gathering through the step ids."""
+
+    def __init__(self, ids, axis_index, omega_t, settle, measure, offsets, amplitude, counter=None, elapsed=None):
+        self.axis, self.omega_t = axis_index[ids], omega_t[ids]
+        self.settle, self.measure, self.offset = settle[ids], measure[ids], offsets[ids]
+        self.end = self.settle + self.measure
+        self.amplitude = amplitude[ids].copy()
+        self.member = np.arange(ids.size)
+        self.counter = np.zeros(ids.size, dtype=int) if counter is None else counter  # cycles into the attempt
+        self.elapsed = np.zeros(ids.size, dtype=int) if elapsed is None else elapsed  # cycles since the step began
+        self.active = np.ones(ids.size, dtype=bool)  # not finished
+
+    def take(self, keep):
+        """The members kept at a compaction."""
+        taken = object.__new__(_Batch)
+        for name, value in vars(self).items():
+            setattr(taken, name, value[keep])
+        taken.member = np.arange(taken.axis.size)
+        return taken
 
 
 def _evaluate(step, segment, periods, frequency_hz, window_start_cycle, sample_time_s, axis, amplitude_a, attempts, plan, level=0):

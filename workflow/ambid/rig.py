@@ -208,9 +208,13 @@ class RigModel:
         self.operating_point = self._operating_point()
         self._linear_system()
         self._initial = self._steady_state()
-        # one product gives every per-cycle output of the state: coil, force current, actuator
-        # position, delayed sensor sample
-        self.state_outputs = np.vstack([self.coil_state, self.force_state, self.position_state, self.delayed_state])
+        # one product gives every per-cycle output of the state: coil current, force-producing current, actuator
+        # position; one more gives the next state and the sensor sample later cycles read (from state and inputs)
+        self.state_outputs = np.vstack([self.coil_state, self.force_state, self.position_state])
+        self.state_update = np.block([[self.transition, self.input_matrix], [self.delayed_state, self.delayed_input]])
+        # one product gives the command and the next controller state from the controller state and the error
+        self.controller_update = np.block([[self.ctrl_c, self.ctrl_d], [self.ctrl_a, self.ctrl_b]])
+        self._residual_constants()
         radius = self.closed_loop_spectral_radius()
         if radius >= 1.0:
             raise ModelError(f"rig {rig.name}: the linearized truth's closed loop is unstable (spectral radius {radius:.6f})")
@@ -340,6 +344,21 @@ class RigModel:
             np.repeat(inputs[:N_AXES, None], batch, axis=1),
         )
 
+    def _residual_constants(self):
+        """Per-axis constants of `residual_force`, column arrays (5, 1): the per-cycle loop evaluates eq. 3.6 and its
+        linearization with them instead of rebuilding them from the actuator and the operating point every cycle."""
+        op, axes = self.operating_point, self.actuators
+        cosine = np.cos(axes.pole_angle_rad)
+        self._gap_sum = 2 * axes.nominal_air_gap_m + axes.iron_path_m  # upper / lower path at x = 0
+        self._gap_slope = 2 * cosine  # d(lower path)/dx = -d(upper path)/dx
+        self._force_constant = axes.force_constant
+        self._center_m = self.imperfections.magnetic_center_offset_m[:, None]
+        self._current_stiffness = op["current_stiffness"][:, None]
+        self._position_stiffness = op["position_stiffness"][:, None]
+        self._bias_delivered = (1 + self.imperfections.bias_current_error)[:, None]
+        self._linear_offset = (op["force"] - op["current_stiffness"] * op["force_current"]
+                               - op["position_stiffness"] * op["actuator_position"])[:, None]
+
     def residual_force(self, force_current, position, bias_a=None):
         """Force law (eq. 3.6) minus its linearization at the operating point, per axis [N].
 
@@ -347,17 +366,21 @@ class RigModel:
         point's).  Coil currents cannot reverse: a coil whose current would go
         negative carries none.
         """
-        op = self.operating_point
         bias = self.true_bias_a[:, None] if bias_a is None else bias_a
         upper = np.maximum(bias + force_current, 0.0)
         lower = np.maximum(bias - force_current, 0.0)
-        exact = force(self.actuators, upper, lower, position - self.imperfections.magnetic_center_offset_m[:, None])
-        linear = (
-            op["force"][:, None]
-            + op["current_stiffness"][:, None] * (force_current - op["force_current"][:, None])
-            + op["position_stiffness"][:, None] * (position - op["actuator_position"][:, None])
-        )
-        return exact - linear
+        # eq. 3.6 (`ambid.bearing.force`) with the gaps of `ambid.bearing._gaps` relative to the magnetic center
+        shift = self._gap_slope * (position - self._center_m)
+        upper /= self._gap_sum - shift
+        lower /= self._gap_sum + shift
+        upper *= upper
+        lower *= lower
+        upper -= lower
+        upper *= self._force_constant  # the exact force
+        upper -= self._linear_offset
+        upper -= self._current_stiffness * force_current
+        upper -= self._position_stiffness * position
+        return upper
 
     def closed_loop_spectral_radius(self):
         """Largest |eigenvalue| of the linearized, noise-free closed loop (plant, controllers, delays).
@@ -390,41 +413,55 @@ class RigModel:
         """
         imp = self.imperfections
         x = state.plant
-        batch = x.shape[1]
+        n, batch = x.shape
         sensed = state.sensor_buffer[state.step % self.buffer_length]
         if rng is not None and imp.sensor_noise_m > 0:
             sensed = sensed + imp.sensor_noise_m * rng.standard_normal((N_AXES, batch))
         measured = _quantize(sensed, imp.sensor_resolution_m) if quantize else sensed
         error = state.setpoint_m - measured
-        command = self.ctrl_c @ state.controller + self.ctrl_d @ error + excitation_a
-        state.controller = self.ctrl_a @ state.controller + self.ctrl_b @ error
+        controller = self.controller_update @ np.concatenate([state.controller, error])
+        command = controller[:N_AXES]
+        command += excitation_a
+        state.controller = controller[N_AXES:]
         outputs = self.state_outputs @ x
         # the coil currents are sampled at the start of the cycle, with the positions: the amplifiers still hold the
         # command of the cycle before (an ideal amplifier's current is one cycle behind U2, as a fast one's is)
         coil = outputs[:N_AXES] + self.coil_input @ state.held_a
         state.held_a = command
-        inputs = np.empty((self.input_matrix.shape[1], batch))
-        inputs[:N_AXES] = command
-        inputs[2 * N_AXES] = 1.0
-        bias = state.bias_a * (1 + imp.bias_current_error[:, None])  # what the amplifiers deliver
+        # [state; inputs]: the inputs are U2 (5), the force law's residual (5) and the constant 1
+        extended = np.empty((self.state_update.shape[1], batch))
+        extended[:n] = x
+        extended[n : n + N_AXES] = command
+        extended[n + 2 * N_AXES] = 1.0
+        bias = state.bias_a * self._bias_delivered  # what the amplifiers deliver
         if nonlinear:
             force_current = outputs[N_AXES : 2 * N_AXES] + self.force_input @ command
-            inputs[N_AXES : 2 * N_AXES] = self.residual_force(force_current, outputs[2 * N_AXES : 3 * N_AXES], bias)
+            extended[n + N_AXES : n + 2 * N_AXES] = self.residual_force(force_current, outputs[2 * N_AXES :], bias)
         else:
-            inputs[N_AXES : 2 * N_AXES] = 0.0
+            extended[n + N_AXES : n + 2 * N_AXES] = 0.0
+        updated = self.state_update @ extended
+        state.plant = updated[:n]
         # sensor samples that later cycles will read (fractional-step outputs)
         slots = (state.step + self.delay_steps) % self.buffer_length
-        state.sensor_buffer[slots, self._axis_index] = outputs[3 * N_AXES :] + self.delayed_input @ inputs
-        state.plant = self.transition @ x + self.input_matrix @ inputs
+        state.sensor_buffer[slots, self._axis_index] = updated[n:]
         state.step += 1
-        upper, lower = bias + coil + imp.current_offset_a[:, :1], bias - coil + imp.current_offset_a[:, 1:]
-        if rng is not None and imp.current_noise_a > 0:
-            upper = upper + imp.current_noise_a * rng.standard_normal((N_AXES, batch))
-            lower = lower + imp.current_noise_a * rng.standard_normal((N_AXES, batch))
-        if quantize:
-            upper, lower = _quantize(upper, imp.current_resolution_a), _quantize(lower, imp.current_resolution_a)
         # ambid.logs.CHANNELS order: U2 and V2 of every axis, then the (upper, lower) pair of each axis
-        return np.concatenate([command, measured, np.stack([upper, lower], axis=1).reshape(2 * N_AXES, batch)])
+        channels = np.empty((4 * N_AXES, batch))
+        channels[:N_AXES] = command
+        channels[N_AXES : 2 * N_AXES] = measured
+        upper, lower = channels[2 * N_AXES :: 2], channels[2 * N_AXES + 1 :: 2]
+        np.add(bias, coil, out=upper)
+        upper += imp.current_offset_a[:, :1]
+        np.subtract(bias, coil, out=lower)
+        lower += imp.current_offset_a[:, 1:]
+        if rng is not None and imp.current_noise_a > 0:
+            upper += imp.current_noise_a * rng.standard_normal((N_AXES, batch))
+            lower += imp.current_noise_a * rng.standard_normal((N_AXES, batch))
+        if quantize and imp.current_resolution_a > 0:
+            currents = channels[2 * N_AXES :]
+            np.rint(currents / imp.current_resolution_a, out=currents)
+            currents *= imp.current_resolution_a
+        return channels
 
     # --------------------------------------------------------- linear model
     def sampled_frequency_response(self, frequency_hz):
