@@ -309,14 +309,14 @@ class _Batch:
     settling and measuring cycles, recording offset), its amplitude and its cycle counters, in batch order, so the
     per-cycle loop reads them without gathering through the step ids."""
 
-    def __init__(self, ids, axis_index, omega_t, settle, measure, offsets, amplitude, counter=None, elapsed=None):
+    def __init__(self, ids, axis_index, omega_t, settle, measure, offsets, amplitude):
         self.axis, self.omega_t = axis_index[ids], omega_t[ids]
         self.settle, self.measure, self.offset = settle[ids], measure[ids], offsets[ids]
         self.end = self.settle + self.measure
         self.amplitude = amplitude[ids].copy()
         self.member = np.arange(ids.size)
-        self.counter = np.zeros(ids.size, dtype=int) if counter is None else counter  # cycles into the attempt
-        self.elapsed = np.zeros(ids.size, dtype=int) if elapsed is None else elapsed  # cycles since the step began
+        self.counter = np.zeros(ids.size, dtype=int)  # cycles into the current attempt
+        self.elapsed = np.zeros(ids.size, dtype=int)  # cycles since the step's excitation started
         self.active = np.ones(ids.size, dtype=bool)  # not finished
 
     def take(self, keep):
