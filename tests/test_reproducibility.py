@@ -6,7 +6,7 @@ import shutil
 import pytest
 import yaml
 
-from test_workflow import ROOT, demo20_on_its_rig, edit_config, snakemake
+from test_workflow import ROOT, demo20_on_its_rig, edit_as_built, edit_config, snakemake
 
 pytestmark = pytest.mark.workflow
 
@@ -43,10 +43,7 @@ def two_runs(tmp_path_factory):
         workdir = tmp_path_factory.mktemp(name)
         shutil.copytree(ROOT / "config", workdir / "config")
         edit_config(workdir, small_configuration)
-        path = workdir / "config/rigs/demo20.as_built.yaml"
-        as_built = yaml.safe_load(path.read_text())
-        coarser_grid(as_built)
-        path.write_text(yaml.safe_dump(as_built))
+        edit_as_built(workdir, "demo20", coarser_grid)
         result = snakemake(workdir, "--cores", "2")
         assert result.returncode == 0, result.stderr[-3000:]
         directories.append(workdir)

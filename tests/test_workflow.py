@@ -41,11 +41,15 @@ def workdir(tmp_path):
     return tmp_path
 
 
+def edit_yaml(path, change):
+    """Apply ``change`` to the YAML file at ``path`` in place."""
+    content = yaml.safe_load(path.read_text())
+    change(content)
+    path.write_text(yaml.safe_dump(content))
+
+
 def edit_config(workdir, change):
-    path = workdir / "config" / "config.yaml"
-    config = yaml.safe_load(path.read_text())
-    change(config)
-    path.write_text(yaml.safe_dump(config))
+    edit_yaml(workdir / "config" / "config.yaml", change)
 
 
 def demo20_on_its_rig(config):
@@ -57,10 +61,12 @@ def demo20_on_its_rig(config):
 
 
 def edit_machine(workdir, name, change):
-    path = workdir / "config" / "machines" / f"{name}.yaml"
-    config = yaml.safe_load(path.read_text())
-    change(config)
-    path.write_text(yaml.safe_dump(config))
+    edit_yaml(workdir / "config" / "machines" / f"{name}.yaml", change)
+
+
+def edit_as_built(workdir, name, change):
+    """Edit the drawing of machine ``name`` as built, which its rig's acquisition runs are planned with."""
+    edit_yaml(workdir / "config" / "rigs" / f"{name}.as_built.yaml", change)
 
 
 @pytest.mark.parametrize(
@@ -92,10 +98,7 @@ def test_config_errors_fail_before_any_job(workdir, change, key):
 )
 def test_rig_config_errors_fail_before_any_job(workdir, change, key):
     edit_config(workdir, demo20_on_its_rig)
-    path = workdir / "config" / "rigs" / "demo20.yaml"
-    config = yaml.safe_load(path.read_text())
-    change(config)
-    path.write_text(yaml.safe_dump(config))
+    edit_yaml(workdir / "config" / "rigs" / "demo20.yaml", change)
     result = snakemake(workdir, "--dry-run")
     assert result.returncode != 0 and key in result.stdout + result.stderr
 
@@ -110,10 +113,7 @@ def test_identification_run_is_reproducible(workdir, tmp_path):
                                      "axial": {"start_hz": 5.0, "stop_hz": 100.0, "points": 20}}
 
     edit_config(workdir, change)
-    path = workdir / "config/rigs/demo20.as_built.yaml"  # the run is planned with the drawing of the machine as built
-    as_built = yaml.safe_load(path.read_text())
-    shorter_grid(as_built)
-    path.write_text(yaml.safe_dump(as_built))
+    edit_as_built(workdir, "demo20", shorter_grid)
     second = tmp_path / "second"
     shutil.copytree(workdir, second)
     targets = ["data/demo20/ident01/identification.parquet", "data/demo20/ident01/identification.m"]
