@@ -41,7 +41,8 @@ import numpy as np
 import yaml
 
 from ambid.compare import measured_channels, model_response
-from ambid.diagnose import INDISTINGUISHABLE_BIC, diagnose, effect_label, misfit, plant_with_effects
+from ambid.diagnose import (INDISTINGUISHABLE_BIC, bic_evidence, diagnose, effect_label, misfit,
+                            plant_with_effects)
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig, identify_on_rig
@@ -98,8 +99,8 @@ def run_case(case):
 
 
 def truth_evidence(config, measured, effects):
-    """What the hidden effects at their true parameters would earn in this log, on the diagnosis' own scale: BIC
-    evidence ``2 (chi2_nominal - chi2_truth) / max(1, chi2_truth / N) - k ln(2N)`` (k: the hidden parameters).
+    """What the hidden effects at their true parameters would earn in this log, on the diagnosis' own scale: the
+    `~ambid.diagnose.bic_evidence` of their k parameters, overdispersion ``max(1, chi2_truth / N)``.
 
     The scorer's view (it knows the truth; the diagnosis does not): a draw whose truth does not earn
     ``INDISTINGUISHABLE_BIC`` is not visible in the data, and no honest diagnosis can name it.  NaN without effects.
@@ -114,7 +115,7 @@ def truth_evidence(config, measured, effects):
     parameters = sum(np.size(value) for entry in effects for value in entry["parameters"].values()
                      if not isinstance(value, str))
     points = residual.size
-    return 2 * (chi2_nominal - chi2_truth) / max(1.0, chi2_truth / points) - parameters * np.log(2 * points)
+    return bic_evidence(chi2_nominal, chi2_truth, parameters, points, max(1.0, chi2_truth / points))
 
 
 def score(result):

@@ -61,6 +61,24 @@ class TestOperatingPoint:
         assert np.max(np.abs(residual)) < 1e-6 * np.max(np.abs(op["force"])) + 1e-9
 
 
+    def test_residual_is_the_bearing_force_law_minus_its_linearization(self, hs_rig_model):
+        """The per-cycle residual writes eq. 3.6 out with per-axis constants: it is `ambid.bearing.force` (at the
+        magnetic center's offset, coils that cannot reverse) minus the linearization, far from the operating point too."""
+        from ambid.bearing import force
+
+        model, op = hs_rig_model, hs_rig_model.operating_point
+        rng = np.random.default_rng(3)
+        force_current = op["force_current"][:, None] + rng.uniform(-4.0, 4.0, (5, 40))  # some coils switched off
+        position = op["actuator_position"][:, None] + rng.uniform(-2e-4, 2e-4, (5, 40))
+        bias = model.true_bias_a[:, None]
+        exact = force(model.actuators, np.maximum(bias + force_current, 0.0), np.maximum(bias - force_current, 0.0),
+                      position - model.imperfections.magnetic_center_offset_m[:, None])
+        linear = (op["force"][:, None] + op["current_stiffness"][:, None] * (force_current - op["force_current"][:, None])
+                  + op["position_stiffness"][:, None] * (position - op["actuator_position"][:, None]))
+        assert_allclose(model.residual_force(force_current, position), exact - linear, rtol=1e-9,
+                        atol=1e-9 * np.max(np.abs(exact)))
+
+
 class TestLinearPart:
     @pytest.mark.parametrize(
         "tau, band_hz, tolerance",

@@ -59,7 +59,7 @@ from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
            "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells",
-           "plant_with_effects", "correlation_time", "INDISTINGUISHABLE_BIC"]
+           "plant_with_effects", "correlation_time", "bic_evidence", "INDISTINGUISHABLE_BIC"]
 
 #: BIC difference below which two candidates explain the data equally well (Kass & Raftery 1995: > 10 is very strong).
 INDISTINGUISHABLE_BIC = 10.0
@@ -473,6 +473,16 @@ def _standard_deviations(free, x, jacobian, chi2, points, residual=None):
 
 
 # ------------------------------------------------------------------------------------------ ranking
+def bic_evidence(chi2_before, chi2_after, parameters, points, overdispersion=1.0):
+    """BIC evidence of ``parameters`` more that take ``chi2 = sum |r|^2`` from ``chi2_before`` to ``chi2_after``.
+
+    ``2 (chi2_before - chi2_after) / overdispersion - parameters ln(2 points)``: each complex point's residual has
+    two real components of variance 1/2 at the floor; ``overdispersion`` (at least 1) deflates the data's weight
+    where the best model is still above the floor.
+    """
+    return 2 * (chi2_before - chi2_after) / overdispersion - parameters * np.log(2 * points)
+
+
 def _rank(fitted, chi2, residual, evaluator, settings):
     """Evidence, share of the excess above the floor and the verdict of each candidate; best first."""
     points = residual.size
@@ -481,9 +491,8 @@ def _rank(fitted, chi2, residual, evaluator, settings):
     excess = cells.excess(residual, above)
     best_chi2 = min([f.chi2 for f in fitted] + [chi2])
     overdispersion = max(1.0, best_chi2 / points)
-    penalty = np.log(2 * points)
     for f in fitted:
-        f.evidence = 2 * (chi2 - f.chi2) / overdispersion - len(f.candidate.free) * penalty
+        f.evidence = bic_evidence(chi2, f.chi2, len(f.candidate.free), points, overdispersion)
         f.significant = f.evidence > INDISTINGUISHABLE_BIC
         f.share = (1.0 - cells.excess(f.residual, above) / excess) if excess > 0 else 0.0
         f.missing = bool(f.significant and above.any() and f.share >= settings.min_share and not f.at_bound)

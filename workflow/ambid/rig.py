@@ -369,7 +369,8 @@ class RigModel:
         bias = self.true_bias_a[:, None] if bias_a is None else bias_a
         upper = np.maximum(bias + force_current, 0.0)
         lower = np.maximum(bias - force_current, 0.0)
-        # eq. 3.6 (`ambid.bearing.force`) with the gaps of `ambid.bearing._gaps` relative to the magnetic center
+        # eq. 3.6 (`ambid.bearing.force`, its gaps `ambid.bearing._gaps`) relative to the magnetic center, written out
+        # with the per-axis constants for the per-cycle loop; tests/test_rig.py holds it to `ambid.bearing.force`
         shift = self._gap_slope * (position - self._center_m)
         upper /= self._gap_sum - shift
         lower /= self._gap_sum + shift
@@ -457,10 +458,8 @@ class RigModel:
         if rng is not None and imp.current_noise_a > 0:
             upper += imp.current_noise_a * rng.standard_normal((N_AXES, batch))
             lower += imp.current_noise_a * rng.standard_normal((N_AXES, batch))
-        if quantize and imp.current_resolution_a > 0:
-            currents = channels[2 * N_AXES :]
-            np.rint(currents / imp.current_resolution_a, out=currents)
-            currents *= imp.current_resolution_a
+        if quantize:
+            channels[2 * N_AXES :] = _quantize(channels[2 * N_AXES :], imp.current_resolution_a)
         return channels
 
     # --------------------------------------------------------- linear model
