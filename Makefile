@@ -29,9 +29,10 @@ run: $(STAMP)
 # The tests on every core (pytest-xdist; tests that share one expensive fixture run on one worker, see
 # tests/conftest.py), one BLAS thread per worker so the workers do not fight over the cores.  compileall: the
 # library's bytecode is written once here, so every Snakemake job reads it even where PYTHONDONTWRITEBYTECODE is set.
+# --durations: the slowest tests are listed at the end, so a CI log shows where the suite's time goes.
 test: $(STAMP)
 	$(BIN)/python -m compileall -q workflow/ambid
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n $(CORES) --dist loadgroup
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n $(CORES) --dist loadgroup --durations=15
 
 lint: $(STAMP)
 	$(BIN)/snakemake --lint

@@ -32,6 +32,7 @@ Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_diagnose.py [s
 """
 
 import concurrent.futures
+import functools
 import os
 import sys
 import time
@@ -77,11 +78,17 @@ def parameter_truth(draws, name, label):
     return value[index] if index is not None and isinstance(value, (tuple, list)) else value
 
 
+@functools.lru_cache(maxsize=None)
+def drawn(machine, seed, radial_points):
+    """The hidden-effect draws of a machine and seed, made once per worker process (~15 s each)."""
+    return hidden_effect_draws(machine_config(machine, radial_points), seed=seed)
+
+
 def run_case(case):
     """Identify one rig and diagnose its nominal model; the scores of `score`."""
     machine, kind, names, seed, radial_points = case
     config = machine_config(machine, radial_points)
-    draws = hidden_effect_draws(config, seed=seed)
+    draws = drawn(machine, seed, radial_points)
     effects = [{"name": n, "parameters": draws[n]} for n in names] if kind in ("single", "pair") else []
     unmodelled = [{"name": names[0], "parameters": OUTSIDE[names[0]]}] if kind == "outside" else []
     settings = settings_from_config(CONFIG["identification"])

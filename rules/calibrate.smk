@@ -15,6 +15,8 @@ rule calibrate:
         convergence="results/{machine}/calibration/{run}/figures/convergence.png",
     log:
         "logs/{machine}/calibrate_{run}.log",
+    benchmark:
+        "logs/{machine}/calibrate_{run}.benchmark.tsv"
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

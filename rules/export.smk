@@ -12,6 +12,8 @@ rule export:
         models_mat="results/{machine}/export/{run}/models.mat",
     log:
         "logs/{machine}/export_{run}.log",
+    benchmark:
+        "logs/{machine}/export_{run}.benchmark.tsv"
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

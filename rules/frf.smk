@@ -12,6 +12,8 @@ rule plausibility:
         table="results/{machine}/frf/{run}/plausibility.tsv",
     log:
         "logs/{machine}/plausibility_{run}.log",
+    benchmark:
+        "logs/{machine}/plausibility_{run}.benchmark.tsv"
     priority: 1  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
@@ -46,6 +48,8 @@ rule frf:
         axial="results/{machine}/frf/{run}/figures/axial.png",
     log:
         "logs/{machine}/frf_{run}.log",
+    benchmark:
+        "logs/{machine}/frf_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("stepped_sine")) or "no_stepped_sine_runs",
     priority: 1  # before the comparisons: the measurement chain the model variants wait for
@@ -80,6 +84,8 @@ rule bla:
         distortion_figure="results/{machine}/frf/{run}/figures/distortion.png",
     log:
         "logs/{machine}/bla_{run}.log",
+    benchmark:
+        "logs/{machine}/bla_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine")) or "no_multisine_runs",
     priority: 1  # before the comparisons: the measurement chain the model variants wait for
@@ -112,6 +118,8 @@ rule identification_methods:
         figure="results/{machine}/methods/figures/methods.png",
     log:
         "logs/{machine}/identification_methods.log",
+    benchmark:
+        "logs/{machine}/identification_methods.benchmark.tsv"
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -135,6 +143,8 @@ rule import_log:
         log="data/{machine}/{run}/identification.parquet",
     log:
         "logs/{machine}/import_log_{run}.log",
+    benchmark:
+        "logs/{machine}/import_log_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(imported_runs()) or "no_imported_runs",
     priority: 1  # before the comparisons: the measurement chain the model variants wait for

@@ -1,11 +1,17 @@
-"""The whole workflow, twice from clean on a small configuration: the same bytes; then what a change re-runs."""
+"""The whole workflow, twice from clean on a small configuration: the same bytes; then what a change re-runs.
 
+The read-only checks of single stages (the model's default target, the calibration stage, the identification log)
+read the second run's files too: one run serves them all (``tests/conftest.py`` keeps this module on one worker).
+"""
+
+import json
 import re
 import shutil
 
 import pytest
 import yaml
 
+from ambid.io import read_parquet
 from test_workflow import ROOT, demo20_on_its_rig, edit_as_built, edit_config, snakemake
 
 pytestmark = pytest.mark.workflow
@@ -94,6 +100,52 @@ def test_the_report_covers_every_stage_with_thesis_references(two_runs):
     # where the log and the fit are quoted: the checks against the model and the findings (none on this run)
     assert "The log against the nominal model" in page and "Findings of the log of run <code>ident01</code>" in page
     assert "Findings of the fit of run <code>ident01</code>" in page
+
+
+def test_the_model_stage_writes_its_units_and_figures(two_runs):
+    workdir = two_runs[1]
+    frame, info = read_parquet(workdir / "results/demo20/model/nominal/plant_frf.parquet", kind="plant_frf")
+    assert info["units"] == {"frequency_hz": "Hz", "im": "m/A", "re": "m/A"}
+    assert set(frame["output"]) == {"DX", "DY", "NX", "NY", "Z"}
+    assert len(frame) == 16 * 250 + 100  # 4x4 radial on the model's 250 points plus Z on 100
+    modes = (workdir / "results/demo20/model/nominal/modes.tsv").read_text()
+    assert "rigid" in modes and "flexible" in modes
+    for figure in ("plant_bode", "axial_bode", "mode_shapes"):
+        assert (workdir / f"results/demo20/model/nominal/figures/{figure}.png").stat().st_size > 10_000
+    assert "ISO 14839-3 zone" in (workdir / "logs/demo20/model_nominal.log").read_text()
+    again = snakemake(workdir, "results/demo20/model/nominal/plant_frf.parquet", "--dry-run")
+    assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
+
+
+def test_calibration_stage_from_log_to_operating_point(two_runs):
+    workdir = two_runs[1]
+    base = workdir / "results/demo20/calibration/cal01"
+    for name in ("magnetic_center.tsv", "offsets.tsv", "pairs.tsv", "repeatability.tsv", "stiffness.tsv",
+                 "figures/convergence.png"):
+        assert (base / name).exists(), name
+    assert (workdir / "data/demo20/cal01/calibration.parquet").exists()
+    # the fragment merges into the machine config and the model linearizes there
+    fragment = yaml.safe_load((base / "operating_point.yaml").read_text())
+    machine = yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text())
+    machine["bearings"]["radial"]["operating_point"] = fragment["bearings"]["radial"]["operating_point"]
+    from ambid.machine import machine_from_config
+    from ambid.plant import Plant
+
+    Plant(machine_from_config(machine))
+    log = (workdir / "logs/demo20/acquire_calibration_cal01.log").read_text()
+    assert "iteration 1, repetition 1: offsets" in log and "(converged)" in log
+
+
+def test_the_identification_log_is_the_rig_run_and_hides_its_truth(two_runs):
+    """The acquisition's log (its bytes the same in both runs: `test_two_clean_runs_give_the_same_bytes`)."""
+    workdir = two_runs[1]
+    frame, info = read_parquet(workdir / "data/demo20/ident01/identification.parquet", kind="identification_log")
+    assert set(frame["excited_axis"]) == {"DX", "DY", "NX", "NY", "Z"} and info["metadata"]["seed"] == 1
+    assert set(frame.loc[frame["excited_axis"] == "Z", "step"]) == set(range(40))  # the as-built drawing's grid
+    assert "truth" not in json.dumps(info["metadata"])  # the log does not leak the rig's truth
+    assert (workdir / "data/demo20/ident01/identification.m").stat().st_size > 0
+    progress = (workdir / "logs/demo20/acquire_identification_ident01.log").read_text()
+    assert "steps accepted: DX" in progress and "Z 40/40" in progress
 
 
 def test_markdown_is_escaped():

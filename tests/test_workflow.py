@@ -103,56 +103,6 @@ def test_rig_config_errors_fail_before_any_job(workdir, change, key):
     assert result.returncode != 0 and key in result.stdout + result.stderr
 
 
-def test_identification_run_is_reproducible(workdir, tmp_path):
-    def change(config):
-        demo20_on_its_rig(config)
-        config["identification"]["axes"] = ["NX", "Z"]  # a shorter run, same code path
-
-    def shorter_grid(machine):  # from 5 Hz: a 1 Hz step alone takes 6 s of the rig's time, its repeat included
-        machine["frequency_grid"] = {"radial": {"start_hz": 5.0, "stop_hz": 1000.0, "points": 60},
-                                     "axial": {"start_hz": 5.0, "stop_hz": 100.0, "points": 20}}
-
-    edit_config(workdir, change)
-    edit_as_built(workdir, "demo20", shorter_grid)
-    second = tmp_path / "second"
-    shutil.copytree(workdir, second)
-    targets = ["data/demo20/ident01/identification.parquet", "data/demo20/ident01/identification.m"]
-    for directory in (workdir, second):
-        result = snakemake(directory, *targets)
-        assert result.returncode == 0, result.stderr[-3000:]
-    for target in targets:
-        assert (workdir / target).read_bytes() == (second / target).read_bytes()
-    frame, info = read_parquet(workdir / targets[0], kind="identification_log")
-    assert set(frame["excited_axis"]) == {"NX", "Z"} and info["metadata"]["seed"] == 1
-    assert "truth" not in json.dumps(info["metadata"])  # the log does not leak the rig's truth
-    progress = (workdir / "logs/demo20/acquire_identification_ident01.log").read_text()
-    assert "steps accepted: NX" in progress and "Z 20/20" in progress
-
-
-def test_calibration_stage_from_log_to_operating_point(workdir):
-    def change(config):
-        demo20_on_its_rig(config)
-        config["calibration"].update(repetitions=2, average_s=0.3)  # shorter, same code path
-
-    edit_config(workdir, change)
-    base = "results/demo20/calibration/cal01"
-    result = snakemake(workdir, f"{base}/magnetic_center.tsv", f"{base}/operating_point.yaml")
-    assert result.returncode == 0, result.stderr[-3000:]
-    for name in ("offsets.tsv", "pairs.tsv", "repeatability.tsv", "stiffness.tsv", "figures/convergence.png"):
-        assert (workdir / base / name).exists()
-    assert (workdir / "data/demo20/cal01/calibration.parquet").exists()
-    # the fragment merges into the machine config and the model linearizes there
-    fragment = yaml.safe_load((workdir / base / "operating_point.yaml").read_text())
-    machine = yaml.safe_load((workdir / "config/machines/demo20.yaml").read_text())
-    machine["bearings"]["radial"]["operating_point"] = fragment["bearings"]["radial"]["operating_point"]
-    from ambid.machine import machine_from_config
-    from ambid.plant import Plant
-
-    Plant(machine_from_config(machine))
-    log = (workdir / "logs/demo20/acquire_calibration_cal01.log").read_text()
-    assert "iteration 1, repetition 1: offsets" in log and "(converged)" in log
-
-
 def test_unknown_calibration_setting_is_rejected(workdir):
     config = yaml.safe_load((workdir / "config/config.yaml").read_text())
     config["calibration"]["tolerance_um"] = 3
@@ -235,23 +185,6 @@ def test_unknown_top_level_key_is_rejected(workdir):
     assert result.returncode != 0 and "machnies" in result.stdout + result.stderr
 
 
-def test_default_target_runs_and_writes_units(workdir):
-    result = snakemake(workdir, "results/demo20/model/nominal/plant_frf.parquet")
-    assert result.returncode == 0, result.stderr[-3000:]
-    frame, info = read_parquet(workdir / "results/demo20/model/nominal/plant_frf.parquet", kind="plant_frf")
-    assert info["units"] == {"frequency_hz": "Hz", "im": "m/A", "re": "m/A"}
-    assert set(frame["output"]) == {"DX", "DY", "NX", "NY", "Z"}
-    assert len(frame) == 16 * 250 + 100  # 4x4 radial on 250 points plus Z on 100
-    modes = (workdir / "results/demo20/model/nominal/modes.tsv").read_text()
-    assert "rigid" in modes and "flexible" in modes
-    for figure in ("plant_bode", "axial_bode", "mode_shapes"):
-        assert (workdir / f"results/demo20/model/nominal/figures/{figure}.png").stat().st_size > 10_000
-    assert "ISO 14839-3 zone" in (workdir / "logs/demo20/model_nominal.log").read_text()
-    # nothing left to do on a second look
-    again = snakemake(workdir, "results/demo20/model/nominal/plant_frf.parquet", "--dry-run")
-    assert "Nothing to be done" in again.stdout + again.stderr
-
-
 def test_library_change_reruns_the_rules(tmp_path):
     """A copy of the workflow whose library source changes: the model rule must rerun."""
     copy = tmp_path / "wf"
@@ -269,8 +202,8 @@ def test_library_change_reruns_the_rules(tmp_path):
 
 
 def test_lint_and_format_are_clean():
-    """snakemake --lint finds nothing (every rule names the conda environment), snakefmt would change nothing, and every
-    rule prints a message."""
+    """snakemake --lint finds nothing (every rule names the conda environment), snakefmt would change nothing, every
+    rule prints a message and every job writes its benchmark."""
     result = subprocess.run([*SNAKEMAKE, "--lint"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     findings = [line.strip() for line in (result.stdout + result.stderr).splitlines() if line.strip().startswith("* ")]
     assert result.returncode == 0 and findings == [], (result.stdout + result.stderr)[-3000:]
@@ -280,6 +213,8 @@ def test_lint_and_format_are_clean():
     texts = [p.read_text() for p in [ROOT / "Snakefile", *(ROOT / "rules").glob("*.smk")]]
     rules = sum(len(re.findall(r"^rule \w+:", text, re.M)) for text in texts)
     assert rules > 15 and sum(len(re.findall(r"^    message:", text, re.M)) for text in texts) == rules
+    # and every rule that runs something records its time (all of them but the target rule `all`)
+    assert sum(len(re.findall(r"^    benchmark:", text, re.M)) for text in texts) == rules - 1
 
 
 def test_fit_and_update_stages_on_a_user_log(workdir):
