@@ -92,7 +92,7 @@ class DiagnoseSettings:
         coordinates (1: a factor e on log-scaled parameters).
     """
 
-    max_evaluations: int = 60
+    max_evaluations: int = 240
     sequence_length: int = 6
     min_share: float = 0.1
     floor_limit: float = 1.5
@@ -372,7 +372,7 @@ def _local_minima(values, shape):
     return flat[np.argsort(values[flat])]
 
 
-def _fit(evaluator, candidate, base=(), max_evaluations=60, starts=2, warm=None):
+def _fit(evaluator, candidate, base=(), max_evaluations=240, starts=2, warm=None):
     """Fit one candidate on top of ``base`` effects: robust scan, robust refinement, then ``chi2``.
 
     ``starts``: scan minima refined (a second one only where its robust misfit is
