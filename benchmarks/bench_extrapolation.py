@@ -30,7 +30,7 @@ from ambid.diagnose import DiagnoseSettings, candidate_space, diagnose, joint_re
 from ambid.effects import effect_from_config
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig
-from ambid.frf import channel, frf_from_log
+from ambid.frf import frf_from_log
 from ambid.logs import identification_frame
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -46,17 +46,6 @@ def machine_config():
     config["frequency_grid"]["radial"].update(points=80, start_hz=5.0)
     config["frequency_grid"]["axial"].update(points=20, start_hz=5.0)
     return config
-
-
-def channels_of(table, keys):
-    """``(output, input) -> (frequency, values, noise std)`` of an FRF table, without its systematic floor."""
-    out = {}
-    for key in keys:
-        current = key[0].startswith("I_")
-        estimator = "current" if current else ("siso" if key[0] == "Z" else "mimo")
-        frequency, values, std = channel(table, estimator, key[1] if current else key[0], key[1])[:3]
-        out[key] = (frequency, values, std)
-    return out
 
 
 def main():
@@ -75,10 +64,11 @@ def main():
     high_table, _, _ = frf_from_log(identification_frame(high))
     low_table, _, _ = frf_from_log(identification_frame(low))
     with_floor = measured_channels(high_table)
-    keys = list(with_floor)
-    noise_high, noise_low = channels_of(high_table, keys), channels_of(low_table, keys)
-    extrapolated = {key: (noise_high[key][0], (4 * noise_low[key][1] - noise_high[key][1]) / 3,
-                          np.hypot(4 * noise_low[key][2], noise_high[key][2]) / 3) for key in keys}
+    # the noise alone: the same channels with the systematic floor set to zero
+    noise_high = measured_channels(high_table.assign(systematic_std=0.0))
+    noise_low = measured_channels(low_table.assign(systematic_std=0.0))
+    extrapolated = {key: (frequency, (4 * noise_low[key][1] - values) / 3, np.hypot(4 * noise_low[key][2], std) / 3)
+                    for key, (frequency, values, std) in noise_high.items()}
     print(f"demo20, hidden foundation mode (seed {SEED}): " + ", ".join(f"{k} {v:.6g}" for k, v in entry["parameters"].items()))
     print(f"{len(repeated)} repeated steps, repeat ratio {settings.repeat_ratio}\n")
     candidate = [c for c in candidate_space(machine) if c.label == "foundation_mode"]

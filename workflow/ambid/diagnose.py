@@ -372,7 +372,7 @@ def _local_minima(values, shape):
     return flat[np.argsort(values[flat])]
 
 
-def _fit(evaluator, candidate, base=(), max_evaluations=240, starts=2, warm=None):
+def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_evaluations, starts=2, warm=None):
     """Fit one candidate on top of ``base`` effects: robust scan, robust refinement, then ``chi2``.
 
     ``starts``: scan minima refined (a second one only where its robust misfit is
