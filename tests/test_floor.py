@@ -73,7 +73,7 @@ class TestTwoLevel:
 
     def test_systematic_std_is_kappa_a_squared_g(self):
         frame = synthetic_log(kappa=0.004, noise=1e-4)
-        table, floors, _ = frf_from_log(frame)
+        table, floors, _ = frf_from_log(frame, FloorSettings(zero_amplitude=False))
         dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
         magnitude = np.hypot(dx["re"], dx["im"])
         amplitude = np.where(dx["frequency_hz"] < 200, 0.5, 2.0)
@@ -88,6 +88,62 @@ class TestTwoLevel:
         dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
         assert np.allclose(dx["systematic_std"], 0.03 * np.hypot(dx["re"], dx["im"]))
         assert all(floors.loc[floors["family"] == "positions", "method"].str.contains("fallback"))
+
+
+def siso_dx(table):
+    dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")].sort_values("frequency_hz")
+    f = dx["frequency_hz"].to_numpy()
+    return f, dx["re"].to_numpy() + 1j * dx["im"].to_numpy(), np.hypot(dx["std"], dx["systematic_std"]).to_numpy()
+
+
+class TestZeroAmplitude:
+    """`ambid.amplitude`: the repeats extrapolated to zero amplitude, where that is the more accurate estimate."""
+
+    @pytest.mark.parametrize("repeat_ratio", [0.5, 0.7])
+    def test_the_linear_plant_is_recovered_at_every_step(self, repeat_ratio):
+        frame = synthetic_log(kappa=0.004, noise=1e-5, repeat_ratio=repeat_ratio)
+        f, g, error = siso_dx(frf_from_log(frame)[0])
+        linear = 1e-5 / (1 + 1j * f / 300)
+        f_measured, g_measured, _ = siso_dx(frf_from_log(frame, FloorSettings(zero_amplitude=False))[0])
+        # the describing function is off by kappa A^2 (1.6 % at 2 A); at zero amplitude only the noise is left, at the
+        # repeated steps and at the steps between them (the correction interpolated)
+        assert np.max(np.abs(g_measured / linear - 1)) > 0.015
+        assert np.max(np.abs(g / linear - 1)) < 2e-4
+        assert np.all(np.abs(g - linear) < 5 * error)
+
+    def test_its_uncertainty_is_the_size_of_its_errors(self):
+        normalized, taken = [], 0
+        for seed in range(4):
+            frame = synthetic_log(kappa=0.004, noise=3e-3, seed=seed, points=120)
+            table, floors, _ = frf_from_log(frame)
+            f, g, error = siso_dx(table)
+            normalized.append(np.abs(g - 1e-5 / (1 + 1j * f / 300)) / error)
+            positions = floors[floors["family"] == "positions"]
+            taken += positions["zero_amplitude_points"].sum()
+        # complex errors: |z|^2 averages to 1 where the uncertainty is right
+        assert np.mean(np.concatenate(normalized) ** 2) == pytest.approx(1.0, abs=0.25)
+        assert taken > 0
+
+    def test_where_the_noise_dominates_the_measured_value_stays(self):
+        # 0.3 % noise against a 0.1 % amplitude error at 0.5 A: extrapolating costs more than it removes; at 2 A
+        # (1.6 %) it pays
+        frame = synthetic_log(kappa=0.004, noise=3e-3, points=120)
+        extrapolated = frf_from_log(frame)[0]
+        measured = frf_from_log(frame, FloorSettings(zero_amplitude=False))[0]
+        f, g, _ = siso_dx(extrapolated)
+        _, g_measured, _ = siso_dx(measured)
+        low, high = f < 150, f > 250
+        assert np.mean(g[low] == g_measured[low]) > 0.8 and np.mean(g[high] == g_measured[high]) < 0.2
+
+    def test_without_amplitude_dependence_it_is_unbiased_and_mostly_not_taken(self):
+        # the floor's estimate from the pairs is noisy, so some points still take the extrapolation; their values and
+        # uncertainties stay right, and most points keep the measured value
+        frame = synthetic_log(kappa=0.0, noise=1e-3, points=120)
+        table, floors, _ = frf_from_log(frame)
+        f, g, error = siso_dx(table)
+        assert np.mean(np.abs(g - 1e-5 / (1 + 1j * f / 300)) ** 2 / error**2) == pytest.approx(1.0, abs=0.2)
+        positions = floors[floors["family"] == "positions"]
+        assert positions["zero_amplitude_points"].sum() < 0.5 * positions["points"].sum()
 
 
 class TestScatter:

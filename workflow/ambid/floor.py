@@ -54,7 +54,7 @@ from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
-           "amplitude_coefficients", "local_coefficient", "peak_coefficient", "smooth_fit_ratio", "systematic_floor"]
+           "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient", "smooth_fit_ratio", "systematic_floor"]
 
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
@@ -78,6 +78,10 @@ class FloorSettings:
         Local-polynomial window: this many steps either side.
     scatter_half_width : int
         Steps either side over which the scatter's ratio to the logged noise is averaged.
+    zero_amplitude : bool
+        Where steps were repeated at a lower amplitude, replace the FRF by its
+        extrapolation to zero amplitude wherever that is the more accurate
+        estimate (`ambid.amplitude.zero_amplitude`).
     """
 
     fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
@@ -85,11 +89,14 @@ class FloorSettings:
     min_pairs: int = 5
     smooth_half_width: int = 3
     scatter_half_width: int = 10
+    zero_amplitude: bool = True
 
     def __post_init__(self):
         floors = dict(self.fallback_floor)
         if set(floors) != set(FAMILIES) or any(not (0 <= v < 1) for v in floors.values()):
             raise ConfigError("frf.fallback_floor", f"needs a relative floor in [0, 1) for each of {list(FAMILIES)}")
+        if not isinstance(self.zero_amplitude, bool):
+            raise ConfigError("frf.zero_amplitude", "must be true or false")
         for key, value, least in (("min_band_points", self.min_band_points, 5), ("min_pairs", self.min_pairs, 2),
                                   ("smooth_half_width", self.smooth_half_width, 2),
                                   ("scatter_half_width", self.scatter_half_width, 2)):
@@ -311,7 +318,7 @@ def _running_mean(values, half_width):
     return np.where(window_count > 0, (total[high] - total[low]) / np.maximum(window_count, 1), np.nan)
 
 
-def _excitation_amplitude(table, arrays):
+def excitation_amplitude_squared(table, arrays):
     """``|U2|^2`` behind every FRF row: its run's excitation; MIMO rows mix the four radial runs (their mean square)."""
     square = np.full(len(table), np.nan)
     frequency = table["frequency_hz"].to_numpy()
@@ -360,7 +367,7 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
     values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
     magnitude = np.abs(values)
     families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
-    excitation = _excitation_amplitude(table, arrays)
+    excitation = excitation_amplitude_squared(table, arrays)
     coefficients = amplitude_coefficients(frame)
     systematic = np.full(len(table), np.nan)
     pairs = np.zeros(len(table), dtype=int)

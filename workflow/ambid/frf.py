@@ -23,6 +23,7 @@ deviation per FRF point that later stages use as fit weights.
 import numpy as np
 import pandas as pd
 
+from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, systematic_floor
 from .logs import CHANNELS
@@ -189,17 +190,32 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     table : pandas.DataFrame
         `frf_table` of the log's level-0 steps: SISO, MIMO (when all four radial
         axes were excited and ``estimator`` is mimo) and coil currents,
-        ``systematic_std`` from `ambid.floor`.
+        ``systematic_std`` from `ambid.floor`; with ``floor_settings.zero_amplitude``,
+        extrapolated to zero amplitude from the repeats where that is more
+        accurate (`ambid.amplitude`).
     floors : pandas.DataFrame
         `ambid.floor.systematic_floor`'s account of how, per family and band.
     mimo : tuple or None
         `mimo_etfe`'s output (its condition numbers).
     """
+    settings = floor_settings or FloorSettings()
     arrays = log_arrays(frame)
     mimo = (mimo_etfe(arrays, source=source) if estimator == "mimo" and all(a in arrays for a in RADIAL_AXES)
             else None)
-    table = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
-    table, floors = systematic_floor(table, arrays, frame, floor_settings or FloorSettings())
+    measured = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
+    table, floors = systematic_floor(measured, arrays, frame, settings)
+    low_arrays = log_arrays(frame, level=1)
+    if settings.zero_amplitude and low_arrays:
+        try:
+            low_mimo = mimo_etfe(low_arrays, source=source) if mimo is not None else None
+        except LogError:  # the four radial axes' repeats are not at the same steps: no MIMO extrapolation
+            low_mimo = None
+        low = frf_table(siso_etfe(low_arrays), low_mimo, current=current_etfe(low_arrays))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = table["std"].to_numpy() / measured["std"].to_numpy()
+        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0),
+                                             settings.min_pairs)
+        floors = account_zero_amplitude(floors, table, extrapolated)
     return table, floors, mimo
 
 

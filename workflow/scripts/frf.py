@@ -61,6 +61,8 @@ for row in floors.itertuples():
                                 f"no repeated steps here: the systematic floor is the documented constant "
                                 f"(config frf.fallback_floor){also}; median {100 * row.relative_median:.3g} % of |G|",
                                 row.relative_median))
+    if getattr(row, "zero_amplitude_points", 0):
+        log.info("  %d of %d points extrapolated to zero amplitude from the repeats", row.zero_amplitude_points, row.points)
     if row.noise_scale < 1:
         findings.append(Finding("frf", "note", "noise_rescaled", f"{row.family} {row.band}",
                                 f"the scatter between neighbouring steps is {row.noise_scale:.2g} times the logged noise "

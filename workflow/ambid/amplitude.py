@@ -1,0 +1,169 @@
+"""The FRF at zero excitation amplitude: the stepped sine's two-level repeats extrapolated (Richardson).
+
+A stepped sine measures the describing function of the bearing at the
+excitation amplitude ``A`` (``|U2|``), not the linearized plant the model is:
+the force law's cubic terms (thesis eq. 3.6) make ``G(A) = G_0 + k(f) A^2 + ...``
+(`ambid.floor`).  A step measured again at a lower amplitude ``A_1`` (log
+``level`` 1, ``identification.repeat_ratio``) gives both ``k`` and the value at
+zero amplitude, which is what the model predicts::
+
+    G_0 = G(A) - lambda (G(A) - G(A_1)),   lambda = A^2 / (A^2 - A_1^2)
+
+(``(4 G(A/2) - G(A)) / 3`` at half the amplitude), with the noise
+``sqrt((lambda - 1)^2 s^2 + lambda^2 s_1^2)`` and no systematic error of order
+``A^2`` left.  Steps that were not repeated take ``G_0 = G(A) / (1 + kappa A^2)``
+with the amplitude coefficient ``kappa = (G(A) / G_0 - 1) / A^2`` interpolated
+(linear in log frequency) from the nearest repeated steps either side: the
+coefficient, not the correction, is smooth in frequency when the adaptive
+amplitude changes from step to step.  Its noise adds to theirs, and the two
+neighbours' difference beyond their noise (half of it) becomes their systematic
+error: the interpolation cannot follow a coefficient that changes within a step,
+as it does at a lightly damped resonance.
+
+A point takes the extrapolated value only where its error variance (noise plus
+interpolation error) is below the measured point's noise plus its floor (the
+``two_level`` floor of `ambid.floor`): where the noise dominates, halving the
+amplitude costs more than the systematic error it removes.  The choice depends
+on estimated errors alone, never on the values, so it adds no bias.
+
+This is beyond the thesis (its FRFs are the describing function at one level).
+"""
+
+import numpy as np
+
+from .floor import excitation_amplitude_squared, family_of
+
+__all__ = ["zero_amplitude", "account_zero_amplitude"]
+
+_KEYS = ["estimator", "output", "input"]
+
+
+def _interpolated(log_frequency, repeated, coefficient, variance):
+    """A coefficient, its noise variance and its interpolation error at every point of one channel.
+
+    ``repeated`` indexes the points with their own estimate (``coefficient`` and
+    ``variance`` in that order); the others interpolate linearly in
+    ``log_frequency`` between the repeated points either side (the nearest one
+    beyond the ends).
+    """
+    x = log_frequency[repeated]
+    right = np.clip(np.searchsorted(x, log_frequency), 1, x.size - 1)
+    left = right - 1
+    weight = np.clip((log_frequency - x[left]) / np.maximum(x[right] - x[left], 1e-12), 0.0, 1.0)
+    value = (1 - weight) * coefficient[left] + weight * coefficient[right]
+    noise = (1 - weight) ** 2 * variance[left] + weight**2 * variance[right]
+    spread = np.abs(coefficient[right] - coefficient[left]) ** 2 - variance[left] - variance[right]
+    error = 0.5 * np.sqrt(np.clip(spread, 0.0, None))
+    value[repeated], noise[repeated], error[repeated] = coefficient, 0.0, 0.0
+    return value, noise, error
+
+
+def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_pairs=5, max_ratio=0.9):
+    """The FRF table at zero excitation amplitude, where that estimate is the more accurate one.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        `ambid.frf.frf_table` of the level-0 steps with ``std`` and ``systematic_std``
+        (`ambid.floor.systematic_floor`).
+    low_table : pandas.DataFrame
+        `ambid.frf.frf_table` of the level-1 repeats (the same estimators).
+    arrays, low_arrays : dict
+        `ambid.frf.log_arrays` of both levels (the excitation amplitudes).
+    noise_scale : array, optional
+        Per row of ``table``: the factor `ambid.floor.systematic_floor` scaled its
+        noise by (the scatter between steps); the repeats' noise takes the same.
+    min_pairs : int
+        Repeated steps a channel needs.
+    max_ratio : float
+        Pairs whose amplitudes' squared ratio ``A_1^2 / A^2`` exceeds this carry
+        no information on the amplitude dependence and are left out.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        A copy; rows that take the zero-amplitude estimate have it in ``re``,
+        ``im``, ``std`` (propagated noise) and ``systematic_std`` (interpolation
+        error; 0 at repeated steps).
+    extrapolated : numpy.ndarray of bool
+        Which rows took it.
+    """
+    table = table.copy()
+    extrapolated = np.zeros(len(table), dtype=bool)
+    if low_table is None or low_table.empty:
+        return table, extrapolated
+    square = excitation_amplitude_squared(table, arrays)
+    low_square = excitation_amplitude_squared(low_table, low_arrays)
+    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
+    low_values = low_table["re"].to_numpy() + 1j * low_table["im"].to_numpy()
+    noise, systematic = table["std"].to_numpy(), table["systematic_std"].to_numpy()
+    low_noise = low_table["std"].to_numpy()
+    scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
+    low_groups = low_table.groupby(_KEYS, sort=False).indices
+    new_values, new_noise, new_systematic = values.copy(), noise.copy(), systematic.copy()
+    for key, rows in table.groupby(_KEYS, sort=False).indices.items():
+        if key not in low_groups:
+            continue
+        rows = rows[np.argsort(table["frequency_hz"].to_numpy()[rows])]
+        frequency = table["frequency_hz"].to_numpy()[rows]
+        low_rows = low_groups[key]
+        low_frequency = low_table["frequency_hz"].to_numpy()[low_rows]
+        position = np.clip(np.searchsorted(frequency, low_frequency), 0, frequency.size - 1)
+        match = np.abs(frequency[position] / low_frequency - 1) < 1e-9
+        repeated, low = position[match], low_rows[match]  # positions in the channel's sorted rows; low-table rows
+        high = rows[repeated]
+        ratio = low_square[low] / square[high]
+        usable = np.isfinite(ratio) & (ratio < max_ratio) & np.isfinite(low_values[low]) & (np.abs(values[high]) > 0)
+        if np.count_nonzero(usable) < min_pairs:
+            continue
+        order = np.argsort(repeated[usable])
+        repeated, high, low = repeated[usable][order], high[usable][order], low[usable][order]
+        lever = 1.0 / (1.0 - low_square[low] / square[high])  # lambda = A^2 / (A^2 - A_1^2)
+        g, g1 = values[high], low_values[low]
+        s, s1 = noise[high], low_noise[low] * scale[high]
+        zero_repeated = g - lever * (g - g1)
+        # the amplitude coefficient kappa = (G(A) / G_0 - 1) / A^2 of each pair: smooth in frequency whatever the
+        # (adaptive) amplitude of each step, so it is what the steps between the pairs interpolate
+        kappa = (g / zero_repeated - 1) / square[high]
+        variance = (lever / square[high]) ** 2 * np.abs(g1 / zero_repeated) ** 2 * ((s / np.abs(g)) ** 2 + (s1 / np.abs(g1)) ** 2)
+        k, k_variance, k_error = _interpolated(np.log(frequency), repeated, kappa, variance)
+        g_all, a2 = values[rows], square[rows]
+        zero = g_all / (1 + k * a2)
+        zero[repeated] = zero_repeated
+        zero_noise = np.sqrt(noise[rows] ** 2 / np.abs(1 + k * a2) ** 2 + k_variance * a2**2 * np.abs(zero) ** 2)
+        zero_noise[repeated] = np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2)
+        zero_systematic = k_error * a2 * np.abs(zero)
+        measured_error = noise[rows] ** 2 + np.nan_to_num(systematic[rows]) ** 2
+        better = zero_noise**2 + zero_systematic**2 < measured_error
+        chosen = rows[better]
+        new_values[chosen], new_noise[chosen], new_systematic[chosen] = zero[better], zero_noise[better], zero_systematic[better]
+        extrapolated[chosen] = True
+    table["re"], table["im"] = new_values.real, new_values.imag
+    table["std"], table["systematic_std"] = new_noise, new_systematic
+    return table, extrapolated
+
+
+def account_zero_amplitude(floors, table, extrapolated):
+    """`ambid.floor.systematic_floor`'s account per family and band, after `zero_amplitude`.
+
+    Adds ``zero_amplitude_points`` (rows that took the extrapolated value) and
+    ``zero_amplitude`` to ``method`` where there are any, and recomputes the
+    relative systematic error's median and p90 over the band's rows as they are now.
+    """
+    floors = floors.copy()
+    floors["zero_amplitude_points"] = 0
+    if floors.empty:
+        return floors
+    families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
+    frequency = table["frequency_hz"].to_numpy()
+    relative = table["systematic_std"].to_numpy() / np.maximum(np.hypot(table["re"], table["im"]).to_numpy(), 1e-300)
+    for k, row in floors.iterrows():
+        inside = (families == row["family"]) & (frequency >= row["band_lo_hz"]) & (frequency < row["band_hi_hz"])
+        count = int(np.count_nonzero(inside & extrapolated))
+        if count == 0:
+            continue
+        floors.loc[k, "zero_amplitude_points"] = count
+        floors.loc[k, "method"] = row["method"] + " + zero_amplitude"
+        floors.loc[k, "relative_median"] = float(np.median(relative[inside]))
+        floors.loc[k, "relative_p90"] = float(np.quantile(relative[inside], 0.9))
+    return floors
