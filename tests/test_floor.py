@@ -73,7 +73,7 @@ class TestTwoLevel:
 
     def test_systematic_std_is_kappa_a_squared_g(self):
         frame = synthetic_log(kappa=0.004, noise=1e-4)
-        table, floors, _ = frf_from_log(frame, FloorSettings(zero_amplitude=False))
+        table, floors, _ = frf_from_log(frame)
         dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
         magnitude = np.hypot(dx["re"], dx["im"])
         amplitude = np.where(dx["frequency_hz"] < 200, 0.5, 2.0)
@@ -96,13 +96,17 @@ def siso_dx(table):
     return f, dx["re"].to_numpy() + 1j * dx["im"].to_numpy(), np.hypot(dx["std"], dx["systematic_std"]).to_numpy()
 
 
+ZERO_AMPLITUDE = FloorSettings(zero_amplitude=True)
+
+
 class TestZeroAmplitude:
-    """`ambid.amplitude`: the repeats extrapolated to zero amplitude, where that is the more accurate estimate."""
+    """`ambid.amplitude` (``frf.zero_amplitude``, opt-in): the repeats extrapolated to zero amplitude, where that is the
+    more accurate estimate."""
 
     @pytest.mark.parametrize("repeat_ratio", [0.5, 0.7])
     def test_the_linear_plant_is_recovered_at_every_step(self, repeat_ratio):
         frame = synthetic_log(kappa=0.004, noise=1e-5, repeat_ratio=repeat_ratio)
-        f, g, error = siso_dx(frf_from_log(frame)[0])
+        f, g, error = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
         linear = 1e-5 / (1 + 1j * f / 300)
         f_measured, g_measured, _ = siso_dx(frf_from_log(frame, FloorSettings(zero_amplitude=False))[0])
         # the describing function is off by kappa A^2 (1.6 % at 2 A); at zero amplitude only the noise is left, at the
@@ -115,7 +119,7 @@ class TestZeroAmplitude:
         normalized, taken = [], 0
         for seed in range(4):
             frame = synthetic_log(kappa=0.004, noise=3e-3, seed=seed, points=120)
-            table, floors, _ = frf_from_log(frame)
+            table, floors, _ = frf_from_log(frame, ZERO_AMPLITUDE)
             f, g, error = siso_dx(table)
             normalized.append(np.abs(g - 1e-5 / (1 + 1j * f / 300)) / error)
             positions = floors[floors["family"] == "positions"]
@@ -128,7 +132,7 @@ class TestZeroAmplitude:
         # 0.3 % noise against a 0.1 % amplitude error at 0.5 A: extrapolating costs more than it removes; at 2 A
         # (1.6 %) it pays
         frame = synthetic_log(kappa=0.004, noise=3e-3, points=120)
-        extrapolated = frf_from_log(frame)[0]
+        extrapolated = frf_from_log(frame, ZERO_AMPLITUDE)[0]
         measured = frf_from_log(frame, FloorSettings(zero_amplitude=False))[0]
         f, g, _ = siso_dx(extrapolated)
         _, g_measured, _ = siso_dx(measured)
@@ -139,7 +143,7 @@ class TestZeroAmplitude:
         # the floor's estimate from the pairs is noisy, so some points still take the extrapolation; their values and
         # uncertainties stay right, and most points keep the measured value
         frame = synthetic_log(kappa=0.0, noise=1e-3, points=120)
-        table, floors, _ = frf_from_log(frame)
+        table, floors, _ = frf_from_log(frame, ZERO_AMPLITUDE)
         f, g, error = siso_dx(table)
         assert np.mean(np.abs(g - 1e-5 / (1 + 1j * f / 300)) ** 2 / error**2) == pytest.approx(1.0, abs=0.2)
         positions = floors[floors["family"] == "positions"]

@@ -203,7 +203,7 @@ def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_nois
     return rig_from_config(rig_config, machine_config, source=name)
 
 
-def identify_on_rig(rig, machine_config, settings, seed=0, setpoint_m=None):
+def identify_on_rig(rig, machine_config, settings, seed=0, setpoint_m=None, floor_settings=None):
     """The stepped-sine identification of ``rig`` planned on the nominal machine, as an FRF table.
 
     Parameters
@@ -216,6 +216,8 @@ def identify_on_rig(rig, machine_config, settings, seed=0, setpoint_m=None):
         Seed of the measurement noise.
     setpoint_m : array (5,), optional
         Position set points (the calibrated magnetic center).
+    floor_settings : ambid.floor.FloorSettings, optional
+        How the FRF stage measures the floor (config ``frf``).
 
     Returns
     -------
@@ -224,5 +226,5 @@ def identify_on_rig(rig, machine_config, settings, seed=0, setpoint_m=None):
     """
     plan = StepPlan.for_machine(Plant(machine_from_config(machine_config)), settings)
     records, _ = run_stepped_sine(RigModel(rig, setpoint_m), plan, settings, seed=seed)
-    table, _, _ = frf_from_log(identification_frame(records))
+    table, _, _ = frf_from_log(identification_frame(records), floor_settings)
     return table

@@ -89,7 +89,7 @@ class FloorSettings:
     min_pairs: int = 5
     smooth_half_width: int = 3
     scatter_half_width: int = 10
-    zero_amplitude: bool = True
+    zero_amplitude: bool = False
 
     def __post_init__(self):
         floors = dict(self.fallback_floor)
