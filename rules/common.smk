@@ -12,12 +12,16 @@ from ambid.channel_fit import max_fit_modes
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
 from ambid.io import file_digest, read_yaml
+from ambid.kernels import pin_cpu_kernels
 from ambid.multisine import multisine_settings_from_config
 from ambid.machine import machine_from_config
 from ambid.effects import effect_from_config
 from ambid.rig import rig_from_config
 from ambid.update import UpdateSettings
 from ambid.variants import NOMINAL, variant_chain
+
+# every job's numpy and OpenBLAS on the AVX2 kernels: the same bytes on any x86-64 CPU (ambid.kernels)
+pin_cpu_kernels()
 
 
 def check_schema(instance, schema, source):

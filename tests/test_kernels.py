@@ -1,0 +1,36 @@
+"""CPU kernels pinned for the jobs (`ambid.kernels`): the same bytes on every x86-64 machine."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from ambid import kernels
+from ambid.kernels import PINNED_KERNELS, pin_cpu_kernels
+
+
+def test_the_kernels_are_pinned_and_the_users_choice_kept(monkeypatch):
+    monkeypatch.setattr(kernels.platform, "machine", lambda: "x86_64")
+    monkeypatch.setattr(kernels, "_has_avx2", lambda: True)
+    environ = {"OPENBLAS_CORETYPE": "SkylakeX"}
+    assert pin_cpu_kernels(environ) == {"NPY_DISABLE_CPU_FEATURES": PINNED_KERNELS["NPY_DISABLE_CPU_FEATURES"]}
+    assert environ["OPENBLAS_CORETYPE"] == "SkylakeX"
+
+
+@pytest.mark.parametrize("machine, avx2", [("aarch64", True), ("x86_64", False)])
+def test_nothing_is_pinned_where_avx2_kernels_cannot_run(monkeypatch, machine, avx2):
+    monkeypatch.setattr(kernels.platform, "machine", lambda: machine)
+    monkeypatch.setattr(kernels, "_has_avx2", lambda: avx2)
+    environ = {}
+    assert pin_cpu_kernels(environ) == {} and environ == {}
+
+
+def test_a_process_started_with_them_runs_numpy_without_avx512():
+    environ = {key: value for key, value in os.environ.items() if key not in PINNED_KERNELS}
+    if not pin_cpu_kernels(environ):
+        pytest.skip("not an x86-64 CPU with AVX2")
+    probe = ("from numpy._core._multiarray_umath import __cpu_features__ as f; "
+             "print(int(any(f.get(k) for k in ('X86_V4', 'AVX512_ICL', 'AVX512_SPR'))))")
+    result = subprocess.run([sys.executable, "-c", probe], env=environ, capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "0"
