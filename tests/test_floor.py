@@ -80,6 +80,7 @@ class TestTwoLevel:
         assert np.median(dx["systematic_std"] / (0.004 * amplitude**2 * magnitude)) == pytest.approx(1.0, rel=0.1)
         positions = floors[floors["family"] == "positions"]
         assert set(positions["method"]) == {"two_level"}
+        assert (floors["zero_amplitude_points"] == 0).all()  # the extrapolation is opt-in (frf.zero_amplitude)
 
     def test_without_repeats_the_constant_applies_and_says_so(self):
         frame = synthetic_log(kappa=0.004, noise=1e-4, repeat_ratio=None)

@@ -205,6 +205,7 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     measured = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
     table, floors = systematic_floor(measured, arrays, frame, settings)
     low_arrays = log_arrays(frame, level=1)
+    extrapolated = np.zeros(len(table), dtype=bool)
     if settings.zero_amplitude and low_arrays:
         try:
             low_mimo = mimo_etfe(low_arrays, source=source) if mimo is not None else None
@@ -215,8 +216,7 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
             scale = table["std"].to_numpy() / measured["std"].to_numpy()
         table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0),
                                              settings.min_pairs)
-        floors = account_zero_amplitude(floors, table, extrapolated)
-    return table, floors, mimo
+    return table, account_zero_amplitude(floors, table, extrapolated), mimo
 
 
 def channel(table, estimator, output, input_axis, systematic=False):
