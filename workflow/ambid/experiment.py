@@ -177,12 +177,12 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
 
 
 def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_noise_a=5e-3, name="hidden_effect_rig",
-                      unmodelled=()):
+                      unmodelled=(), sensor_resolution_m=5e-8, current_resolution_a=1e-3):
     """A rig whose truth is the machine plus ``effects`` (``effects:`` entries), centred and weightless.
 
     ``unmodelled`` entries add physics outside the model's library (`ambid.rig_effects`).
 
-    Noise and ADC quantization as on the default rig; no magnetic-center offset,
+    Noise and ADC quantization as on the default rig (0 turns either off); no magnetic-center offset,
     gravity or bias-current error, so the rig sits at the operating point the
     nominal model assumes (a calibrated machine) and only the hidden effects
     separate truth from model.
@@ -195,9 +195,9 @@ def hidden_effect_rig(machine_config, effects, sensor_noise_m=2e-7, current_nois
             "unmodelled": list(unmodelled),
             "gravity_m_s2": 0.0,
             "sensor_noise_m": sensor_noise_m,
-            "sensor_resolution_m": 5e-8,
+            "sensor_resolution_m": sensor_resolution_m,
             "current_noise_a": current_noise_a,
-            "current_resolution_a": 1e-3,
+            "current_resolution_a": current_resolution_a,
         },
     }
     return rig_from_config(rig_config, machine_config, source=name)
