@@ -54,7 +54,8 @@ from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
-           "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient", "smooth_fit_ratio", "systematic_floor"]
+           "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
+           "smooth_fit_ratio", "systematic_floor"]
 
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
