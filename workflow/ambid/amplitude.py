@@ -26,7 +26,11 @@ interpolation error) is below the measured point's noise plus its floor (the
 amplitude costs more than the systematic error it removes.  The choice depends
 on estimated errors alone, never on the values, so it adds no bias.
 
-This is beyond the thesis (its FRFs are the describing function at one level).
+Opt-in (config ``frf.zero_amplitude``): it trusts each point's stated noise,
+which the stepped sine's thesis settling (0.3 s) leaves too small above about
+300 Hz on hs_eden_like's rig (README; ``benchmarks/bench_extrapolation.py``
+part 3).  This is beyond the thesis (its FRFs are the describing function at
+one level).
 """
 
 import numpy as np
