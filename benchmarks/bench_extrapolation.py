@@ -37,8 +37,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ambid.compare import channel_family, measured_channels, model_response
-from ambid.diagnose import DiagnoseSettings, candidate_space, diagnose, joint_refit, misfit, plant_with_effects
+from ambid.compare import measured_channels, model_response
+from ambid.diagnose import (DiagnoseSettings, candidate_space, diagnose, joint_refit, misfit, misfit_cells,
+                            plant_with_effects)
 from ambid.effects import effect_from_config
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig
@@ -62,13 +63,10 @@ def machine_config():
 
 
 def family_chi2(measured, predicted):
-    """chi2 per point per channel family: ``{family: (chi2/pt, points)}``."""
-    out = {}
-    for key, (_, values, std) in measured.items():
-        family = channel_family(key[0])
-        chi2, points = out.get(family, (0.0, 0))
-        out[family] = (chi2 + float(np.sum(np.abs((predicted[key] - values) / std) ** 2)), points + values.size)
-    return {family: (chi2 / points, points) for family, (chi2, points) in out.items()}
+    """chi2 per point per channel family (`ambid.diagnose.misfit_cells` summed over bands): ``{family: (chi2/pt, points)}``."""
+    cells = misfit_cells(measured, predicted).assign(chi2=lambda c: c["chi2_per_point"] * c["points"])
+    totals = cells.groupby("family")[["chi2", "points"]].sum()
+    return {family: (row.chi2 / row.points, int(row.points)) for family, row in totals.iterrows()}
 
 
 def full_log_study(name, config, entries, settings, seed):

@@ -103,15 +103,16 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     noise, systematic = table["std"].to_numpy(), table["systematic_std"].to_numpy()
     low_noise = low_table["std"].to_numpy()
     scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
+    all_frequency, low_all_frequency = table["frequency_hz"].to_numpy(), low_table["frequency_hz"].to_numpy()
     low_groups = low_table.groupby(_KEYS, sort=False).indices
     new_values, new_noise, new_systematic = values.copy(), noise.copy(), systematic.copy()
     for key, rows in table.groupby(_KEYS, sort=False).indices.items():
         if key not in low_groups:
             continue
-        rows = rows[np.argsort(table["frequency_hz"].to_numpy()[rows])]
-        frequency = table["frequency_hz"].to_numpy()[rows]
+        rows = rows[np.argsort(all_frequency[rows])]
+        frequency = all_frequency[rows]
         low_rows = low_groups[key]
-        low_frequency = low_table["frequency_hz"].to_numpy()[low_rows]
+        low_frequency = low_all_frequency[low_rows]
         position = np.clip(np.searchsorted(frequency, low_frequency), 0, frequency.size - 1)
         match = np.abs(frequency[position] / low_frequency - 1) < 1e-9
         repeated, low = position[match], low_rows[match]  # positions in the channel's sorted rows; low-table rows

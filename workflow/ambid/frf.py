@@ -204,9 +204,8 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
             else None)
     measured = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
     table, floors = systematic_floor(measured, arrays, frame, settings)
-    low_arrays = log_arrays(frame, level=1)
     extrapolated = np.zeros(len(table), dtype=bool)
-    if settings.zero_amplitude and low_arrays:
+    if settings.zero_amplitude and (low_arrays := log_arrays(frame, level=1)):
         try:
             low_mimo = mimo_etfe(low_arrays, source=source) if mimo is not None else None
         except LogError:  # the four radial axes' repeats are not at the same steps: no MIMO extrapolation
