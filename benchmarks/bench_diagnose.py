@@ -31,9 +31,10 @@ Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_diagnose.py [s
 [--suite] [key=value ...]`` (default 2 seeds, 120-point radial grids, 1 worker; about an hour on an idle 2-core
 machine).  ``--suite`` runs section 1 alone; ``key=value`` changes the config for this run, an ``identification`` key
 (``settle_min_s=1.0``) or an ``frf`` floor key (``zero_amplitude=true``), to measure what a setting does.  The suite
-follows ``config/config.yaml``'s ``identification`` and ``frf`` sections otherwise.  Measured, seed 2026, 80 points
-(stop 25): settle_min_s 0.3 (default) -> 24 of 28 named first, zero_amplitude=true 16; settle_min_s=1.0 16,
-with zero_amplitude=true 21.
+follows ``config/config.yaml``'s ``identification`` and ``frf`` sections otherwise.  Measured, seeds 2026 and 2027,
+80 points, 2 workers (stop 26, ``2 80 2 --suite``): 41 of 50 named first, parameters 35 of 50, final misfit 50 of 50,
+outside the library 8 of 8 and 8 of 8, negative controls 4 of 4; ``zero_amplitude=true`` 41 and 36;
+``noise_half_width=0`` (each step's own noise) 41 and 36.  About 8 minutes.
 """
 
 import concurrent.futures

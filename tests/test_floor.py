@@ -1,11 +1,12 @@
 """The FRF's systematic floor: bands from the grid, two-level amplitude coefficients, scatter, fallback."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ambid.errors import ConfigError
 from ambid.floor import (FloorSettings, amplitude_coefficients, frequency_bands, local_coefficient, peak_coefficient,
-                         smooth_fit_ratio)
+                         pooled_noise, smooth_fit_ratio)
 from ambid.frf import frf_from_log
 from ambid.logs import CHANNELS, identification_frame, validate_identification_log
 
@@ -203,3 +204,55 @@ def test_a_peak_of_the_amplitude_coefficient_is_kept_where_it_is():
     assert peak[at] == pytest.approx(np.sqrt(3.5e-3**2 - 4e-8), rel=1e-9) and local[at] < 0.5 * peak[at]
     assert peak[at - 1] == peak[at] and peak[at + 1] == peak[at]  # the unpaired neighbours: their nearest pairs
     assert np.all(peak[np.abs(np.arange(steps.size) - at) > 2] < 3e-4)  # elsewhere only what is significant
+
+
+class TestPooledNoise:
+    def test_each_channel_is_pooled_with_its_own_neighbours_only(self):
+        frame = synthetic_log(kappa=0.0, noise=1e-3, points=12).sample(frac=1.0, random_state=3)  # rows shuffled
+        frame["noise_std"] = 1e-6 * (1 + frame["frequency_hz"] / 600) * (1 + frame["level"]) * (
+            1 + frame["channel"].map(CHANNELS.index))
+        pooled = pooled_noise(frame, half_width=1)
+        assert pooled.index.equals(frame.index)  # rows where they were
+        for level in (0, 1):
+            rows = frame[(frame["channel"] == "V2_DX") & (frame["level"] == level)].sort_values("frequency_hz")
+            variance = rows["noise_std"].to_numpy() ** 2
+            expected = np.sqrt([variance[max(k - 1, 0) : k + 2].mean() for k in range(variance.size)])
+            np.testing.assert_allclose(pooled.loc[rows.index, "noise_std"], expected, rtol=1e-12)
+        assert pooled_noise(frame, half_width=0) is frame
+
+    def test_a_step_that_went_wrong_keeps_its_noise_to_itself(self):
+        """A step whose loop diverged (its noise 1e7 times its neighbours') keeps its own and is left out of theirs."""
+        f = np.linspace(100.0, 200.0, 9)
+        noise = np.full(f.size, 1e-3)
+        noise[4] = 1e4
+        frame = pd.DataFrame({"excited_axis": "DX", "channel": "V2_DX", "level": 0, "frequency_hz": f, "noise_std": noise})
+        pooled = pooled_noise(frame, half_width=2)["noise_std"].to_numpy()
+        assert pooled[4] == 1e4
+        np.testing.assert_allclose(np.delete(pooled, 4), 1e-3, rtol=1e-12)
+
+    def test_pooling_makes_the_stated_noise_honest(self):
+        """Errors of complex noise whose variance a step states from two DFT lines (4 degrees of freedom): |e|^2 / s^2
+        is F(2, 4), of mean 2 and 95th percentile 6.9; pooled over 2 neighbours either side (20 degrees of freedom)
+        it is F(2, 20), of mean 20 / 18 and 95th percentile 3.5, though the noise varies threefold along the grid."""
+        rng = np.random.default_rng(5)
+        f = np.linspace(10.0, 800.0, 4000)
+        sigma = 1e-3 * (1 + 2 * np.sin(np.pi * f / 800) ** 2)  # smooth along the grid
+        complex_noise = lambda *shape: sigma.reshape(-1, *[1] * len(shape)) * (  # noqa: E731
+            rng.standard_normal((f.size, *shape)) + 1j * rng.standard_normal((f.size, *shape))) / np.sqrt(2)
+        error = complex_noise()
+        stated = np.sqrt(np.mean(np.abs(complex_noise(2)) ** 2, axis=1))
+        frame = pd.DataFrame({"excited_axis": "DX", "channel": "V2_DX", "level": 0, "frequency_hz": f, "noise_std": stated})
+        z2 = {h: np.abs(error) ** 2 / pooled_noise(frame, h)["noise_std"].to_numpy() ** 2 for h in (0, 2)}
+        assert np.mean(z2[0]) > 1.7 and np.percentile(z2[0], 95) > 6
+        assert 1.0 < np.mean(z2[2]) < 1.25
+        assert 3.2 < np.percentile(z2[2], 95) < 3.8
+
+    def test_the_frf_stage_pools_as_configured(self):
+        frame = synthetic_log(kappa=0.0, noise=1e-3, points=30)
+        raw, _, _ = frf_from_log(frame, FloorSettings(noise_half_width=0))
+        pooled, _, _ = frf_from_log(pooled_noise(frame, 2), FloorSettings(noise_half_width=0))
+        default, _, _ = frf_from_log(frame)
+        np.testing.assert_allclose(default["std"], pooled["std"], rtol=1e-12)
+        assert not np.allclose(default["std"], raw["std"])
+        with pytest.raises(ConfigError, match="noise_half_width"):
+            FloorSettings(noise_half_width=-1)

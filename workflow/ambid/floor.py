@@ -40,6 +40,12 @@ the FRF, replaces that noise: the closed loop correlates the noise of U2 with
 that of the outputs, which the first-order propagation of independent noise
 overstates (most on the coil currents, whose noise is mostly U2's).
 
+Before any of this, the logged noise itself is pooled over neighbouring steps
+(`pooled_noise`): a stepped-sine step states its noise from the two DFT lines
+beside the excitation line, an estimate with 4 degrees of freedom, and a
+weight of ``1 / s^2`` built from it makes chi2 twice as large on average as the
+noise explains, with a tail without a variance (``|e|^2 / s^2`` is F(2, 4)).
+
 Every FRF row gets a ``systematic_std``; `floor_table` says which method applied
 where, and the report shows it.
 """
@@ -55,7 +61,7 @@ from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
-           "smooth_fit_ratio", "systematic_floor"]
+           "smooth_fit_ratio", "pooled_noise", "systematic_floor"]
 
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
@@ -83,6 +89,9 @@ class FloorSettings:
         Where steps were repeated at a lower amplitude, replace the FRF by its
         extrapolation to zero amplitude wherever that is the more accurate
         estimate (`ambid.amplitude.zero_amplitude`).
+    noise_half_width : int
+        The logged noise of each step is pooled with this many steps either side
+        (`pooled_noise`; 0: each step's own estimate).
     """
 
     fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
@@ -91,6 +100,7 @@ class FloorSettings:
     smooth_half_width: int = 3
     scatter_half_width: int = 10
     zero_amplitude: bool = False
+    noise_half_width: int = 2
 
     def __post_init__(self):
         floors = dict(self.fallback_floor)
@@ -100,7 +110,8 @@ class FloorSettings:
             raise ConfigError("frf.zero_amplitude", "must be true or false")
         for key, value, least in (("min_band_points", self.min_band_points, 5), ("min_pairs", self.min_pairs, 2),
                                   ("smooth_half_width", self.smooth_half_width, 2),
-                                  ("scatter_half_width", self.scatter_half_width, 2)):
+                                  ("scatter_half_width", self.scatter_half_width, 2),
+                                  ("noise_half_width", self.noise_half_width, 0)):
             if int(value) != value or value < least:
                 raise ConfigError(f"frf.{key}", f"must be a whole number >= {least}")
 
@@ -317,6 +328,55 @@ def _running_mean(values, half_width):
     high = np.clip(index + half_width + 1, 0, len(values))
     window_count = count[high] - count[low]
     return np.where(window_count > 0, (total[high] - total[low]) / np.maximum(window_count, 1), np.nan)
+
+
+#: `pooled_noise`: a step's noise variance this many times its window's median is not pooled.
+OUTLYING_VARIANCE = 10.0
+
+
+def pooled_noise(frame, half_width=2):
+    """The log's noise of every step pooled with its neighbours': ``s_k = sqrt(mean(s_j^2, |j - k| <= half_width))``.
+
+    A stepped-sine step states the noise of each channel from the DFT lines
+    beside its excitation line (`ambid.excitation`): with two lines, ``s^2`` has
+    4 degrees of freedom, and ``|e|^2 / s^2`` of an error ``e`` of that noise is
+    F(2, 4), of mean 2 and without a variance (its 95th percentile 6.9, against
+    3.0 for the exponential of a known noise).  The noise of a channel changes smoothly
+    along the grid, so the mean of ``2 half_width + 1`` neighbours' variances
+    has ``4 (2 half_width + 1)`` degrees of freedom (2: F(2, 20), mean 1.11,
+    95th percentile 3.5).  Pooled per excited axis, level and channel, in
+    frequency order; the ends take the neighbours they have.  A variance above
+    `OUTLYING_VARIANCE` times its window's median (a step that went wrong: a
+    4-degree-of-freedom estimate is that far above its mean once in a million
+    steps) stays out of its neighbours' mean and keeps its own.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Identification log (`ambid.logs`).
+    half_width : int
+        Steps either side; 0 returns the log as it is.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``noise_std`` pooled, rows in the log's order.
+    """
+    if half_width == 0 or frame.empty:
+        return frame
+    keys = ["excited_axis", "channel"] + (["level"] if "level" in frame.columns else [])
+    variance = frame["noise_std"].to_numpy(dtype=float) ** 2
+    frequency = frame["frequency_hz"].to_numpy(dtype=float)
+    pooled = np.empty_like(variance)
+    for rows in frame.groupby(keys, sort=False).indices.values():  # positions, whatever the frame's index
+        rows = rows[np.argsort(frequency[rows], kind="stable")]
+        padded = np.pad(variance[rows], half_width, constant_values=np.nan)
+        window = np.lib.stride_tricks.sliding_window_view(padded, 2 * half_width + 1)
+        typical = np.nanmedian(window, axis=1, keepdims=True)
+        window = np.where(window > OUTLYING_VARIANCE * typical, np.nan, window)
+        own = variance[rows]
+        pooled[rows] = np.where(own > OUTLYING_VARIANCE * typical[:, 0], own, np.nanmean(window, axis=1))
+    return frame.assign(noise_std=np.sqrt(pooled))
 
 
 def excitation_amplitude_squared(table, arrays):

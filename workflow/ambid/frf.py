@@ -25,7 +25,7 @@ import pandas as pd
 
 from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
-from .floor import FloorSettings, systematic_floor
+from .floor import FloorSettings, pooled_noise, systematic_floor
 from .logs import CHANNELS
 from .machine import ALL_AXES, RADIAL_AXES
 
@@ -188,7 +188,8 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     Returns
     -------
     table : pandas.DataFrame
-        `frf_table` of the log's level-0 steps: SISO, MIMO (when all four radial
+        `frf_table` of the log's level-0 steps (their noise pooled over
+        ``floor_settings.noise_half_width`` neighbours, `ambid.floor.pooled_noise`): SISO, MIMO (when all four radial
         axes were excited and ``estimator`` is mimo) and coil currents,
         ``systematic_std`` from `ambid.floor`; with ``floor_settings.zero_amplitude``,
         extrapolated to zero amplitude from the repeats where that is more
@@ -199,6 +200,7 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
         `mimo_etfe`'s output (its condition numbers).
     """
     settings = floor_settings or FloorSettings()
+    frame = pooled_noise(frame, settings.noise_half_width)
     arrays = log_arrays(frame)
     mimo = (mimo_etfe(arrays, source=source) if estimator == "mimo" and all(a in arrays for a in RADIAL_AXES)
             else None)
