@@ -195,7 +195,8 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
         extrapolated to zero amplitude from the repeats where that is more
         accurate (`ambid.amplitude`).
     floors : pandas.DataFrame
-        `ambid.floor.systematic_floor`'s account of how, per family and band.
+        `ambid.floor.systematic_floor`'s account of how, per family and band, with
+        ``noise_pooled_steps`` (the steps each step's noise is pooled over).
     mimo : tuple or None
         `mimo_etfe`'s output (its condition numbers).
     """
@@ -217,7 +218,9 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
             scale = table["std"].to_numpy() / measured["std"].to_numpy()
         table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0),
                                              settings.min_pairs)
-    return table, account_zero_amplitude(floors, table, extrapolated), mimo
+    floors = account_zero_amplitude(floors, table, extrapolated).assign(
+        noise_pooled_steps=2 * settings.noise_half_width + 1)
+    return table, floors, mimo
 
 
 def channel(table, estimator, output, input_axis, systematic=False):

@@ -436,7 +436,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
             facts.append(Text(
                 f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides by): "
                 + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
-                            for family, part in floors.groupby("family", sort=False)) + "."))
+                            for family, part in floors.groupby("family", sort=False))
+                + (f"; each step's noise pooled over {int(floors['noise_pooled_steps'].iloc[0])} steps"
+                   if "noise_pooled_steps" in floors and len(floors) and floors["noise_pooled_steps"].iloc[0] > 1 else "")
+                + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
                 table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
                                                   "low-frequency compliance and coil-current ratio over the model's (a "
@@ -454,7 +457,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                       "band hold the FRF extrapolated to zero amplitude from the repeats, where that is more accurate "
                       "than the measured value with its floor, their systematic_std the interpolation's error; "
                       "`relative_median` / `relative_p90` of systematic_std / |G|, `noise_scale` where the scatter "
-                      "shows the logged noise overstated.")]))
+                      "shows the logged noise overstated; `noise_pooled_steps`: each step's logged noise is the mean "
+                      "over that many neighbouring steps (config `frf.noise_half_width`), since a step's own estimate "
+                      "from the two DFT lines beside its excitation line would weight chi-square twice too high on "
+                      "average.")]))
         features = read_tsv(root / f"fit/{run}/features.tsv")
         features = features[(features["estimator"] == "output_error")
                             & features["kind"].isin(["resonance", "anti_resonance"])]
