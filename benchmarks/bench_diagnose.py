@@ -55,6 +55,7 @@ from ambid.excitation import settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig, identify_on_rig
 from ambid.floor import FloorSettings
 from ambid.io import read_parquet, read_yaml
+from ambid.kernels import rerun_pinned
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plausibility import FRF_SETTINGS
@@ -258,6 +259,7 @@ def default_machines():
 
 
 if __name__ == "__main__":
+    rerun_pinned()  # the same figures on every x86-64 CPU (ambid.kernels)
     seeds = range(2026, 2026 + (int(sys.argv[1]) if len(sys.argv) > 1 else 2))
     points = int(sys.argv[2]) if len(sys.argv) > 2 else 120
     workers = int(sys.argv[3]) if len(sys.argv) > 3 else 1

@@ -48,6 +48,7 @@ from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig
 from ambid.floor import FloorSettings, pooled_noise
 from ambid.frf import frf_from_log, log_arrays, mimo_etfe
+from ambid.kernels import rerun_pinned
 from ambid.logs import CHANNELS, identification_frame
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -203,4 +204,5 @@ def main():
 
 
 if __name__ == "__main__":
+    rerun_pinned()  # the same figures on every x86-64 CPU (ambid.kernels)
     main()

@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
+from ambid.kernels import rerun_pinned
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.rig import RigModel, rig_from_config
@@ -78,4 +79,5 @@ def main(machine="hs_eden_like"):
 
 
 if __name__ == "__main__":
+    rerun_pinned()  # the same figures on every x86-64 CPU (ambid.kernels)
     main(*sys.argv[1:])

@@ -47,6 +47,7 @@ from ambid.bla import multisine_frf
 from ambid.channel_fit import FitError, feature_rows, fit_channel, known_response, rigid_pole_hz, select_channels
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.frf import channel, current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
+from ambid.kernels import rerun_pinned
 from ambid.logs import identification_frame
 from ambid.machine import RADIAL_AXES, machine_from_config
 from ambid.multisine import identify_multisine, multisine_settings_from_config
@@ -247,4 +248,5 @@ def main():
 
 
 if __name__ == "__main__":
+    rerun_pinned()  # the same figures on every x86-64 CPU (ambid.kernels)
     main()

@@ -34,3 +34,21 @@ def test_a_process_started_with_them_runs_numpy_without_avx512():
              "print(int(any(f.get(k) for k in ('X86_V4', 'AVX512_ICL', 'AVX512_SPR'))))")
     result = subprocess.run([sys.executable, "-c", probe], env=environ, capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "0"
+
+
+def test_a_benchmark_runs_itself_again_pinned_once(monkeypatch):
+    """`rerun_pinned` re-executes the script with the same arguments when it pinned something, and returns when the
+    kernels were pinned already (the re-executed process), so it never loops."""
+    monkeypatch.setattr(kernels.platform, "machine", lambda: "x86_64")
+    monkeypatch.setattr(kernels, "_has_avx2", lambda: True)
+    started = []
+    monkeypatch.setattr(kernels.os, "execv", lambda path, argv: started.append((path, argv)))
+    monkeypatch.setattr(kernels.sys, "argv", ["benchmarks/bench_diagnose.py", "2", "--suite"])
+    for name in PINNED_KERNELS:  # set then deleted, so that the test leaves the environment as it found it
+        monkeypatch.setenv(name, "")
+        monkeypatch.delenv(name)
+    kernels.rerun_pinned()
+    assert started == [(sys.executable, [sys.executable, "benchmarks/bench_diagnose.py", "2", "--suite"])]
+    assert all(os.environ[name] == value for name, value in PINNED_KERNELS.items())
+    kernels.rerun_pinned()  # as the re-executed process: nothing left to pin
+    assert len(started) == 1

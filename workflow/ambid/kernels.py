@@ -7,14 +7,16 @@ measures, so a last-bit difference can change a decision and the log with it:
 the default workflow's hs_eden_like ledger read 3085 instead of 3167 chi2 per
 point for the variant ``amplifier`` on an AVX-512 machine.  Pinned to the AVX2
 kernels (which every x86-64 CPU since 2013 has), a run gives the same bytes on
-any of them.  The Snakefile pins the jobs it starts; a value the user set
-already is kept.
+any of them.  The Snakefile pins the jobs it starts, and the benchmarks that
+drive the rig run themselves again pinned (`rerun_pinned`); a value the user
+set already is kept.
 """
 
 import os
 import platform
+import sys
 
-__all__ = ["PINNED_KERNELS", "pin_cpu_kernels"]
+__all__ = ["PINNED_KERNELS", "pin_cpu_kernels", "rerun_pinned"]
 
 #: numpy's dispatch targets beyond AVX2 (numpy 2.x group names) and OpenBLAS' AVX2 kernel family.
 PINNED_KERNELS = {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Haswell"}
@@ -47,3 +49,15 @@ def pin_cpu_kernels(environ=None):
     added = {name: value for name, value in PINNED_KERNELS.items() if name not in environ}
     environ.update(added)
     return added
+
+
+def rerun_pinned():
+    """Start the running script again with its kernels pinned (`pin_cpu_kernels`), unless they are already.
+
+    For the benchmarks that drive the rig: their figures (what the diagnosis
+    names on a rig's log) then do not depend on the CPU they ran on.  Returns
+    only when nothing needed pinning.
+    """
+    if pin_cpu_kernels():
+        sys.stdout.flush()
+        os.execv(sys.executable, [sys.executable, *sys.argv])
