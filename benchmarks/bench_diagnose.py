@@ -34,7 +34,8 @@ machine).  ``--suite`` runs section 1 alone; ``key=value`` changes the config fo
 follows ``config/config.yaml``'s ``identification`` and ``frf`` sections otherwise.  Measured, seeds 2026 and 2027,
 80 points, 2 workers (stop 26, ``2 80 2 --suite``): 41 of 50 named first, parameters 35 of 50, final misfit 50 of 50,
 outside the library 8 of 8 and 8 of 8, negative controls 4 of 4; ``zero_amplitude=true`` 41 and 36;
-``noise_half_width=0`` (each step's own noise) 41 and 36.  About 8 minutes.
+``noise_half_width=0`` (each step's own noise) 41 and 36; the same verdicts with the kernels pinned (the script
+runs itself again pinned, `ambid.kernels.rerun_pinned`) and not.  About 8 minutes.
 """
 
 import concurrent.futures
