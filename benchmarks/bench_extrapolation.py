@@ -25,9 +25,9 @@ foundation mode and with no effect.
 Part 3 is what the extrapolation needs of the log's noise estimate: on the diagnosis benchmark's grid (80 points from
 1 Hz, seeds 2026-2028) the hs_eden_like rig's extrapolated points, with the noise as each step states it (two DFT
 lines, 4 degrees of freedom) and pooled over neighbouring steps as the FRF stage does (`ambid.floor.pooled_noise`),
-at the thesis' settling (0.3 s) and at 1 s.  Measured (stop 26): mean (max) |error|^2 / stated^2 at 300-500 Hz 3.66
-(40.6) as stated, 1.40 (6.7) pooled at 0.3 s; 1.34 (7.5) and 0.95 (2.3) at 1 s.  A rig without noise and without ADC
-quantization shows what the A^2 law leaves (single points near the first flexible mode above 500 Hz).  (Without noise
+at the thesis' settling (0.3 s) and at 1 s.  Measured (stop 26, kernels pinned): mean (max) |error|^2 / stated^2
+at 300-500 Hz 3.71 (38.7) as stated, 1.38 (6.1) pooled at 0.3 s; 1.35 (7.5) and 0.97 (2.4) at 1 s.  A rig without
+noise and without ADC quantization shows what the A^2 law leaves (single points near the first flexible mode above 500 Hz).  (Without noise
 but with quantization, the rig's undithered ADC steps dominate every error above ~300 Hz: not a useful reference.)  The
 model side never reads the rig: the truth is used only to score.
 
@@ -103,11 +103,11 @@ def full_log_study(name, config, entries, settings, seed):
 
 
 def noise_study(config, settings, seeds, sensor_noise_m, current_noise_a, resolution=True, half_widths=(0, 2)):
-    """Why the extrapolation is opt-in: the hs_eden_like rig without hidden effects on the diagnosis benchmark's grid
-    (80 points from 1 Hz), the DX/DX element of the MIMO FRF at the repeated steps per band, over ``seeds``: the rms
-    relative error against the truth and the rms stated noise, at the measured amplitude, at half of it and
-    extrapolated, and the mean and largest |error|^2 / stated^2 of the extrapolation (1 where the log's noise
-    estimate is right), with the log's noise as each step states it (``half_widths`` 0) and pooled over its
+    """What the extrapolation needs of the log's noise: the hs_eden_like rig without hidden effects on the diagnosis
+    benchmark's grid (80 points from 1 Hz), the DX/DX element of the MIMO FRF at the repeated steps per band, over
+    ``seeds``: the rms relative error against the truth and the rms stated noise, at the measured amplitude, at half
+    of it and extrapolated, and the mean and largest |error|^2 / stated^2 of the extrapolation (1 where the log's
+    noise estimate is right), with the log's noise as each step states it (``half_widths`` 0) and pooled over its
     neighbours as the FRF stage does (`ambid.floor.pooled_noise`, config ``frf.noise_half_width``)."""
     plant = Plant(machine_from_config(config))
     rig = hidden_effect_rig(config, [], sensor_noise_m=sensor_noise_m, current_noise_a=current_noise_a,

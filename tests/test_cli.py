@@ -153,6 +153,7 @@ def test_readme_five_steps_as_written(tmp_path):
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
     reports = list(tmp_path.glob("*/results/rotor1/report.html"))
     assert len(reports) == 1 and reports[0].stat().st_size > 100_000
+    assert "each step's noise pooled over 5 steps" in reports[0].read_text()  # the floor fact (frf.noise_half_width)
     workdir = reports[0].parents[2]
     assert "axis  steps  frequency grid" in result.stdout and "DX      100  2-1000 Hz" in result.stdout
     assert (workdir / "data/rotor1/run01/identification.parquet").exists()

@@ -432,14 +432,13 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                                                    "the coarse pass (rms per line [um]) and their ratios [dB].")]))
         else:
             floors = read_tsv(root / base / "floor.tsv")
+            pooled = int(floors["noise_pooled_steps"].max()) if len(floors) and "noise_pooled_steps" in floors else 1
             warnings += warnings_of(f"{base}/findings.tsv", f"identification {run}")
             facts.append(Text(
                 f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides by): "
                 + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
                             for family, part in floors.groupby("family", sort=False))
-                + (f"; each step's noise pooled over {int(floors['noise_pooled_steps'].iloc[0])} steps"
-                   if "noise_pooled_steps" in floors and len(floors) and floors["noise_pooled_steps"].iloc[0] > 1 else "")
-                + "."))
+                + (f"; each step's noise pooled over {pooled} steps" if pooled > 1 else "") + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
                 table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
                                                   "low-frequency compliance and coil-current ratio over the model's (a "
