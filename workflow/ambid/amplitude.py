@@ -26,20 +26,18 @@ interpolation error) is below the measured point's noise plus its floor (the
 amplitude costs more than the systematic error it removes.  The choice depends
 on estimated errors alone, never on the values, so it adds no bias.
 
-Opt-in (config ``frf.zero_amplitude``): it trusts each point's stated noise,
-which the stepped sine's thesis settling (0.3 s) leaves too small above about
-300 Hz on hs_eden_like's rig (README; ``benchmarks/bench_extrapolation.py``
-part 3).  This is beyond the thesis (its FRFs are the describing function at
-one level).
+On by default (config ``frf.zero_amplitude``; false keeps the describing function
+at the measured amplitude with its two-level floor).  It trusts each point's
+stated noise, which is why it waited for the stepped sine's noise to be pooled
+over neighbouring steps (`ambid.floor.pooled_noise`).  This is beyond the thesis
+(its FRFs are the describing function at one level).
 """
 
 import numpy as np
 
-from .floor import excitation_amplitude_squared, family_of
+from .floor import excitation_amplitude_squared, family_of, level_pairs
 
 __all__ = ["zero_amplitude", "account_zero_amplitude"]
-
-_KEYS = ["estimator", "output", "input"]
 
 
 def _interpolated(log_frequency, repeated, coefficient, variance):
@@ -103,26 +101,12 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     noise, systematic = table["std"].to_numpy(), table["systematic_std"].to_numpy()
     low_noise = low_table["std"].to_numpy()
     scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
-    all_frequency, low_all_frequency = table["frequency_hz"].to_numpy(), low_table["frequency_hz"].to_numpy()
-    low_groups = low_table.groupby(_KEYS, sort=False).indices
+    frequency_all = table["frequency_hz"].to_numpy()
     new_values, new_noise, new_systematic = values.copy(), noise.copy(), systematic.copy()
-    for key, rows in table.groupby(_KEYS, sort=False).indices.items():
-        if key not in low_groups:
+    for rows, repeated, low in level_pairs(table, low_table, square, low_square, max_ratio).values():
+        if repeated.size < min_pairs:
             continue
-        rows = rows[np.argsort(all_frequency[rows])]
-        frequency = all_frequency[rows]
-        low_rows = low_groups[key]
-        low_frequency = low_all_frequency[low_rows]
-        position = np.clip(np.searchsorted(frequency, low_frequency), 0, frequency.size - 1)
-        match = np.abs(frequency[position] / low_frequency - 1) < 1e-9
-        repeated, low = position[match], low_rows[match]  # positions in the channel's sorted rows; low-table rows
-        high = rows[repeated]
-        ratio = low_square[low] / square[high]
-        usable = np.isfinite(ratio) & (ratio < max_ratio) & np.isfinite(low_values[low]) & (np.abs(values[high]) > 0)
-        if np.count_nonzero(usable) < min_pairs:
-            continue
-        order = np.argsort(repeated[usable])
-        repeated, high, low = repeated[usable][order], high[usable][order], low[usable][order]
+        frequency, high = frequency_all[rows], rows[repeated]
         lever = 1.0 / (1.0 - low_square[low] / square[high])  # lambda = A^2 / (A^2 - A_1^2)
         g, g1 = values[high], low_values[low]
         s, s1 = noise[high], low_noise[low] * scale[high]

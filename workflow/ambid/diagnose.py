@@ -191,7 +191,7 @@ def candidate_space(machine):
     candidates += [Candidate(f"element_stiffness[{tag}]", "element_stiffness",
                              (FreeParameter("scale", 0.05, 5.0, start=1.0, scan=32),), {"tag": tag}) for tag in tags]
     candidates += [
-        Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 1e-4, 0.1, scan=16),)),
+        Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 1e-5, 0.1, scan=20),)),
         Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 100.0, 2e5, scan=48),)),
     ]
     shifts = []

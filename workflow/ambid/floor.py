@@ -63,6 +63,8 @@ __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_la
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
            "smooth_fit_ratio", "pooled_noise", "systematic_floor"]
 
+_KEYS = ["estimator", "output", "input"]
+
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
 
@@ -88,7 +90,7 @@ class FloorSettings:
     zero_amplitude : bool
         Where steps were repeated at a lower amplitude, replace the FRF by its
         extrapolation to zero amplitude wherever that is the more accurate
-        estimate (`ambid.amplitude.zero_amplitude`).
+        estimate (`ambid.amplitude.zero_amplitude`; default true).
     noise_half_width : int
         The logged noise of each step is pooled with this many steps either side
         (`pooled_noise`; 0: each step's own estimate).
@@ -99,7 +101,7 @@ class FloorSettings:
     min_pairs: int = 5
     smooth_half_width: int = 3
     scatter_half_width: int = 10
-    zero_amplitude: bool = False
+    zero_amplitude: bool = True
     noise_half_width: int = 2
 
     def __post_init__(self):
@@ -174,80 +176,79 @@ def band_labels(edges):
     return [f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in zip(edges[:-1], edges[1:])]
 
 
-def level_pairs(frame):
-    """Steps measured at two levels: per excited axis, the level-0 and level-1 coefficients of the same steps.
+def level_pairs(table, low_table, square, low_square, max_ratio=0.9):
+    """The FRF rows measured again at a lower amplitude, channel by channel.
+
+    Parameters
+    ----------
+    table, low_table : pandas.DataFrame
+        `ambid.frf.frf_table` of the level-0 steps and of their level-1 repeats (the same estimators).
+    square, low_square : numpy.ndarray
+        `excitation_amplitude_squared` of every row of each table.
+    max_ratio : float
+        Pairs whose squared amplitude ratio ``A_1^2 / A^2`` exceeds this carry no
+        information on the amplitude dependence and are left out.
 
     Returns
     -------
     dict
-        ``axis -> (frequency_hz (n,), c0 (n, 20), s0 (n, 20), c1 (n, 20), s1 (n, 20))``,
-        coefficients and noise in `ambid.logs.CHANNELS` order; axes without repeats are absent.
+        ``(estimator, output, input) -> (rows, repeated, low)``: the channel's rows of ``table``
+        sorted by frequency, the positions in ``rows`` of the repeated steps (ascending) and their rows in
+        ``low_table``.  Every estimator pairs with its own repeat: a MIMO element with the MIMO
+        estimate of the repeats, whose amplitude dependence near a resonance is not its SISO twin's.
     """
-    if frame is None or "level" not in frame.columns or not (frame["level"] > 0).any():
-        return {}
-    index = {name: k for k, name in enumerate(CHANNELS)}
     out = {}
-    for axis, group in frame[frame["level"] <= 1].groupby("excited_axis", sort=False):
-        repeated = np.intersect1d(group.loc[group["level"] == 1, "step"].unique(), group.loc[group["level"] == 0, "step"].unique())
-        if repeated.size == 0:
+    if low_table is None or low_table.empty:
+        return out
+    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
+    low_values = low_table["re"].to_numpy() + 1j * low_table["im"].to_numpy()
+    frequency_all, low_frequency_all = table["frequency_hz"].to_numpy(), low_table["frequency_hz"].to_numpy()
+    low_groups = low_table.groupby(_KEYS, sort=False).indices
+    for key, rows in table.groupby(_KEYS, sort=False).indices.items():
+        if key not in low_groups:
             continue
-        arrays = []
-        for level in (0, 1):
-            part = group[(group["level"] == level) & group["step"].isin(repeated)]
-            row = np.searchsorted(repeated, part["step"].to_numpy())
-            column = part["channel"].map(index).to_numpy()
-            coefficients = np.full((repeated.size, len(CHANNELS)), np.nan + 0j)
-            noise = np.full((repeated.size, len(CHANNELS)), np.nan)
-            coefficients[row, column] = part["re"].to_numpy() + 1j * part["im"].to_numpy()
-            noise[row, column] = part["noise_std"].to_numpy()
-            arrays += [coefficients, noise]
-        frequency = group[group["level"] == 0].groupby("step")["frequency_hz"].first().loc[repeated].to_numpy()
-        out[axis] = (frequency, *arrays)
+        rows = rows[np.argsort(frequency_all[rows])]
+        frequency, low_rows = frequency_all[rows], low_groups[key]
+        position = np.clip(np.searchsorted(frequency, low_frequency_all[low_rows]), 0, frequency.size - 1)
+        match = np.abs(frequency[position] / low_frequency_all[low_rows] - 1) < 1e-9
+        repeated, low = position[match], low_rows[match]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = low_square[low] / square[rows[repeated]]
+        usable = (np.isfinite(ratio) & (ratio < max_ratio) & np.isfinite(low_values[low])
+                  & (np.abs(values[rows[repeated]]) > 0) & (np.abs(low_values[low]) > 0))
+        order = np.argsort(repeated[usable])
+        out[key] = (rows, repeated[usable][order], low[usable][order])
     return out
 
 
-def _pair_channels(axis, c0, s0, c1, s1):
-    """The channels of one excited axis' pairs: ``(family, output, y0, sy0, y1, sy1)``."""
-    out = []
-    outputs = [AXIAL_AXIS] if axis == AXIAL_AXIS else list(RADIAL_AXES)
-    for output in outputs:
-        k = CHANNELS.index(f"V2_{output}")
-        out.append(("axial" if output == AXIAL_AXIS else "positions", output, c0[:, k], s0[:, k], c1[:, k], s1[:, k]))
-    up, low = CHANNELS.index(f"I_upper_{axis}"), CHANNELS.index(f"I_lower_{axis}")
-    out.append(("currents", axis, 0.5 * (c0[:, up] - c0[:, low]), 0.5 * np.hypot(s0[:, up], s0[:, low]),
-                0.5 * (c1[:, up] - c1[:, low]), 0.5 * np.hypot(s1[:, up], s1[:, low])))
-    return out
-
-
-def amplitude_coefficients(frame):
-    """The amplitude coefficient ``kappa`` [1/A^2] of every channel at every repeated step.
+def amplitude_coefficients(table, low_table, square, low_square):
+    """The amplitude coefficient ``kappa`` [1/A^2] of every FRF channel at every repeated step.
 
     ``G(A) = G_lin (1 + kappa(f) A^2 + ...)`` with ``A`` the excitation amplitude
     ``|U2|`` (the force law's cubic terms grow with the square of the current and
     of the air-gap change, both proportional to ``A`` at one frequency), so a
     pair gives ``kappa = (G_0 / G_1 - 1) / (A_0^2 - A_1^2)`` and its noise
-    variance from the logged noise of both levels.
+    variance from both rows' noise (`level_pairs` for the arguments).
 
     Returns
     -------
     dict
-        ``(family, output, input) -> (frequency_hz, kappa (complex), variance)``, ``output`` ``I_<axis>``
-        for the coil currents; only finite estimates.
+        ``(estimator, output, input) -> (frequency_hz, kappa (complex), variance)``; only finite estimates.
     """
+    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
+    low_values = low_table["re"].to_numpy() + 1j * low_table["im"].to_numpy() if low_table is not None else None
+    noise = table["std"].to_numpy()
+    low_noise = low_table["std"].to_numpy() if low_table is not None else None
     out = {}
-    for axis, (frequency, c0, s0, c1, s1) in level_pairs(frame).items():
-        u = CHANNELS.index(f"U2_{axis}")
-        lever = np.abs(c0[:, u]) ** 2 - np.abs(c1[:, u]) ** 2
-        for family, output, y0, sy0, y1, sy1 in _pair_channels(axis, c0, s0, c1, s1):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                g0, g1 = y0 / c0[:, u], y1 / c1[:, u]
-                rel0 = np.hypot(sy0 / np.abs(y0), s0[:, u] / np.abs(c0[:, u]))
-                rel1 = np.hypot(sy1 / np.abs(y1), s1[:, u] / np.abs(c1[:, u]))
-                kappa = (g0 / g1 - 1) / lever
-                variance = np.abs(g0 / g1) ** 2 * (rel0**2 + rel1**2) / lever**2
-            ok = np.isfinite(kappa) & np.isfinite(variance) & (variance > 0) & (lever > 0)
-            name = f"I_{output}" if family == "currents" else output
-            out[(family, name, axis)] = (frequency[ok], kappa[ok], variance[ok])
+    for key, (rows, repeated, low) in level_pairs(table, low_table, square, low_square).items():
+        high = rows[repeated]
+        g0, g1 = values[high], low_values[low]
+        lever = square[high] - low_square[low]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            kappa = (g0 / g1 - 1) / lever
+            variance = np.abs(g0 / g1) ** 2 * ((noise[high] / np.abs(g0)) ** 2 + (low_noise[low] / np.abs(g1)) ** 2) / lever**2
+        ok = np.isfinite(kappa) & np.isfinite(variance) & (variance > 0) & (lever > 0)
+        out[key] = (table["frequency_hz"].to_numpy()[high][ok], kappa[ok], variance[ok])
     return out
 
 
@@ -395,7 +396,7 @@ def excitation_amplitude_squared(table, arrays):
     return square
 
 
-def systematic_floor(table, arrays, frame, settings=FloorSettings()):
+def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=FloorSettings()):
     """Fill the FRF table's ``systematic_std`` from the log; say how, per family and band.
 
     Parameters
@@ -404,8 +405,11 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
         `ambid.frf.frf_table` of the run's level-0 steps.
     arrays : dict
         `ambid.frf.log_arrays` of the same steps (excitation amplitudes).
-    frame : pandas.DataFrame or None
-        The identification log (its repeated steps, if any); None for FRFs without a log (UFF58).
+    low_table : pandas.DataFrame, optional
+        `ambid.frf.frf_table` of the steps repeated at a lower amplitude (log ``level`` 1);
+        None where there are none or the FRF has no log (UFF58).
+    low_arrays : dict, optional
+        `ambid.frf.log_arrays` of the repeats.
     settings : FloorSettings
 
     Returns
@@ -420,8 +424,9 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
     -----
     ``two_level`` rows get ``|kappa(f)| |U2|^2 |G|`` with ``kappa`` of their channel
     (`local_coefficient` of `amplitude_coefficients`, or `peak_coefficient` where
-    larger: a resonance's own pairs; a MIMO element takes its SISO
-    twin's); a channel with fewer than ``min_pairs`` pairs falls back per band to
+    larger: a resonance's own pairs).  A MIMO element takes its own pairs (the MIMO
+    estimate of the repeats); its SISO twin's only where the repeats have no MIMO
+    estimate.  A channel with fewer than ``min_pairs`` pairs falls back per band to
     ``smooth_fit`` or the constant.
     """
     table = table.copy()
@@ -429,7 +434,8 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
     magnitude = np.abs(values)
     families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
     excitation = excitation_amplitude_squared(table, arrays)
-    coefficients = amplitude_coefficients(frame)
+    low_square = excitation_amplitude_squared(low_table, low_arrays) if low_table is not None else None
+    coefficients = amplitude_coefficients(table, low_table, excitation, low_square) if low_table is not None else {}
     systematic = np.full(len(table), np.nan)
     pairs = np.zeros(len(table), dtype=int)
     smooth = np.full(len(table), np.nan)
@@ -438,7 +444,9 @@ def systematic_floor(table, arrays, frame, settings=FloorSettings()):
         frequency = table.loc[order, "frequency_hz"].to_numpy()
         smooth[order] = smooth_fit_ratio(frequency, values[order], table.loc[order, "std"].to_numpy(), settings.smooth_half_width)
         family = family_of(estimator, output, input_axis)
-        estimates = coefficients.get((family, f"I_{output}" if family == "currents" else output, input_axis))
+        estimates = coefficients.get((estimator, output, input_axis))
+        if estimator == "mimo" and (estimates is None or estimates[0].size < settings.min_pairs):
+            estimates = coefficients.get(("siso", output, input_axis))
         if estimates is not None and estimates[0].size >= settings.min_pairs:
             kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
             systematic[order] = kappa * excitation[order] * magnitude[order]

@@ -206,14 +206,16 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     mimo = (mimo_etfe(arrays, source=source) if estimator == "mimo" and all(a in arrays for a in RADIAL_AXES)
             else None)
     measured = frf_table(siso_etfe(arrays), mimo, current=current_etfe(arrays))
-    table, floors = systematic_floor(measured, arrays, frame, settings)
-    extrapolated = np.zeros(len(table), dtype=bool)
-    if settings.zero_amplitude and (low_arrays := log_arrays(frame, level=1)):
+    low, low_arrays = None, log_arrays(frame, level=1)
+    if low_arrays:
         try:
             low_mimo = mimo_etfe(low_arrays, source=source) if mimo is not None else None
-        except LogError:  # the four radial axes' repeats are not at the same steps: no MIMO extrapolation
+        except LogError:  # the four radial axes' repeats are not at the same steps: no MIMO pairs
             low_mimo = None
         low = frf_table(siso_etfe(low_arrays), low_mimo, current=current_etfe(low_arrays))
+    table, floors = systematic_floor(measured, arrays, low, low_arrays, settings)
+    extrapolated = np.zeros(len(table), dtype=bool)
+    if settings.zero_amplitude and low is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = table["std"].to_numpy() / measured["std"].to_numpy()
         table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0),

@@ -25,7 +25,7 @@ if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no r
     table, provenance = read_uff_frf(source, **snakemake.params.uff_options)
     for note in provenance["notes"]:
         log.info("%s: %s", source, note)
-    table, floors = systematic_floor(table, {}, None, floor_settings)
+    table, floors = systematic_floor(table, {}, settings=floor_settings)
 else:
     frame, info = read_identification_log(snakemake.input.log)
     metadata = info["metadata"]
