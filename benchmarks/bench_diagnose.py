@@ -30,12 +30,11 @@
 Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_diagnose.py [seeds] [radial points] [workers]
 [--suite] [key=value ...]`` (default 2 seeds, 120-point radial grids, 1 worker; about an hour on an idle 2-core
 machine).  ``--suite`` runs section 1 alone; ``key=value`` changes the config for this run, an ``identification`` key
-(``settle_min_s=1.0``) or an ``frf`` floor key (``zero_amplitude=true``), to measure what a setting does.  The suite
+(``settle_min_s=1.0``) or an ``frf`` floor key (``zero_amplitude=false``), to measure what a setting does.  The suite
 follows ``config/config.yaml``'s ``identification`` and ``frf`` sections otherwise.  Measured, seeds 2026 and 2027,
-80 points, 2 workers (stop 26, ``2 80 2 --suite``): 41 of 50 named first, parameters 35 of 50, final misfit 50 of 50,
-outside the library 8 of 8 and 8 of 8, negative controls 4 of 4; ``zero_amplitude=true`` 41 and 36;
-``noise_half_width=0`` (each step's own noise) 41 and 36; the same verdicts with the kernels pinned (the script
-runs itself again pinned, `ambid.kernels.rerun_pinned`) and not.  About 8 minutes.
+80 points, 2 workers (stop 27, ``2 80 2 --suite``): 42 of 50 named first, parameters 40 of 50, final misfit 50 of 50,
+outside the library 8 of 8 and 8 of 8, negative controls 4 of 4; ``zero_amplitude=false`` 40 and 37 (before the MIMO
+floor took its own pairs, stop 26: 41 and 35, and 41 and 36 extrapolated).  About 8 minutes.
 """
 
 import concurrent.futures
@@ -265,7 +264,7 @@ if __name__ == "__main__":
     points = int(sys.argv[2]) if len(sys.argv) > 2 else 120
     workers = int(sys.argv[3]) if len(sys.argv) > 3 else 1
     only_suite = "--suite" in sys.argv
-    for option in sys.argv[4:]:  # what-ifs on the config: settle_min_s=1.0 (identification), zero_amplitude=true (frf)
+    for option in sys.argv[4:]:  # what-ifs on the config: settle_min_s=1.0 (identification), zero_amplitude=false (frf)
         if "=" in option:
             key, value = option.split("=", 1)
             section = "frf" if key in FloorSettings.__dataclass_fields__ else "identification"

@@ -452,7 +452,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                       "from steps repeated at a lower amplitude (the force law's amplitude-dependent error), "
                       "`smooth_fit` from the scatter between neighbouring steps beyond the noise, `fallback` the "
                       "documented constant (config `frf.fallback_floor`) where the data cannot tell; "
-                      "`zero_amplitude` (opt-in, config `frf.zero_amplitude: true`): `zero_amplitude_points` points of the "
+                      "`zero_amplitude` (config `frf.zero_amplitude`, on by default): `zero_amplitude_points` points of the "
                       "band hold the FRF extrapolated to zero amplitude from the repeats, where that is more accurate "
                       "than the measured value with its floor, their systematic_std the interpolation's error; "
                       "`relative_median` / `relative_p90` of systematic_std / |G|, `noise_scale` where the scatter "
