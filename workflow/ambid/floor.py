@@ -57,7 +57,7 @@ import pandas as pd
 
 from .errors import ConfigError
 from .logs import CHANNELS
-from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
+from .machine import AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
@@ -235,11 +235,12 @@ def amplitude_coefficients(table, low_table, square, low_square):
     dict
         ``(estimator, output, input) -> (frequency_hz, kappa (complex), variance)``; only finite estimates.
     """
-    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
-    low_values = low_table["re"].to_numpy() + 1j * low_table["im"].to_numpy() if low_table is not None else None
-    noise = table["std"].to_numpy()
-    low_noise = low_table["std"].to_numpy() if low_table is not None else None
     out = {}
+    if low_table is None or low_table.empty:
+        return out
+    values = table["re"].to_numpy() + 1j * table["im"].to_numpy()
+    low_values = low_table["re"].to_numpy() + 1j * low_table["im"].to_numpy()
+    noise, low_noise = table["std"].to_numpy(), low_table["std"].to_numpy()
     for key, (rows, repeated, low) in level_pairs(table, low_table, square, low_square).items():
         high = rows[repeated]
         g0, g1 = values[high], low_values[low]
@@ -435,7 +436,7 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
     families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
     excitation = excitation_amplitude_squared(table, arrays)
     low_square = excitation_amplitude_squared(low_table, low_arrays) if low_table is not None else None
-    coefficients = amplitude_coefficients(table, low_table, excitation, low_square) if low_table is not None else {}
+    coefficients = amplitude_coefficients(table, low_table, excitation, low_square)
     systematic = np.full(len(table), np.nan)
     pairs = np.zeros(len(table), dtype=int)
     smooth = np.full(len(table), np.nan)
