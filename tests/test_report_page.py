@@ -12,10 +12,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
-from ambid.diagnosis_report import share_text  # noqa: E402
+from ambid.diagnosis_report import run_disagreements, share_text  # noqa: E402
 from ambid.plots import excess_maps, phase_deg, phase_near, save_figure  # noqa: E402
-from ambid.report import (Figure, Section, Table, Text, engineering_units, render_report, update_caveat,  # noqa: E402
-                          verdict_markdown)
+from ambid.report import (Figure, Section, Table, Text, _run_disagreements, engineering_units, render_report,  # noqa: E402
+                          update_caveat, verdict_markdown)
 
 
 class Page(HTMLParser):
@@ -158,3 +158,23 @@ def test_excess_maps_share_one_scale_and_hatch_what_is_not_measured(tmp_path):
     hatched = [p for p in figure.axes[0].patches if p.get_hatch()]
     assert hatched  # not measured (Z above 50 Hz, DX below... ) is hatched, not white
     save_figure(figure, tmp_path / "maps.png", dpi=40)
+
+
+def test_runs_that_disagree_beyond_their_uncertainty_are_named(tmp_path):
+    """Two runs' joint refits of the same variant: a parameter both determine, 6 sigma apart, is a warning in the
+    summary; one within its uncertainty, one undetermined in a run and an empty joint table are not."""
+    joint = lambda rows: pd.DataFrame(rows, columns=["parameter", "value", "std", "determined"])  # noqa: E731
+    joints = {"ident01": joint([("delay.delay_s", 60e-6, 3e-8, True), ("bias[0]", 1.0095, 1.3e-4, True),
+                                ("scale[0]", 0.8, 0.1, True)]),
+              "ms01": joint([("delay.delay_s", 60.05e-6, 4e-8, True), ("bias[0]", 1.0183, 1.45e-3, True),
+                             ("scale[0]", 2.0, 0.1, False)]),
+              "empty": joint([])}
+    found = run_disagreements(joints)
+    assert list(found["parameter"]) == ["bias[0]"] and found["sigma"].iloc[0] == pytest.approx(6.045, abs=0.001)
+    assert run_disagreements(joints, threshold=0.5)["parameter"].tolist() == ["bias[0]", "delay.delay_s"]
+    for run, frame in joints.items():
+        (tmp_path / f"diagnose/{run}/last").mkdir(parents=True)
+        frame.to_csv(tmp_path / f"diagnose/{run}/last/joint.tsv", sep="\t", index=False)
+    (warning,) = _run_disagreements(tmp_path, ["ident01", "ms01", "empty"], "last")
+    assert warning["where"] == "diagnoses of last on ident01 and ms01" and warning["severity"] == "warning"
+    assert "`bias[0]` 1.0095 +- 0.00013 against 1.0183 +- 0.0014 (6.0 sigma)" in warning["message"]

@@ -9,7 +9,10 @@ undetermined, misfit no effect explains.  `effects_config_lines` writes the
 model exactly.
 """
 
+import itertools
+
 import numpy as np
+import pandas as pd
 import yaml
 
 from .compare import channel_errors, model_response, summarize
@@ -18,7 +21,12 @@ from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
 
-__all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value", "share_text"]
+__all__ = ["effects_config_lines", "diagnosis_report", "diagnosis_findings", "format_value", "share_text",
+           "run_disagreements", "DISAGREEMENT_SIGMA"]
+
+#: Two runs' joint values of one parameter disagree beyond this many combined standard deviations
+#: (`run_disagreements`; by chance one parameter in 16,000 goes beyond 4 sigma).
+DISAGREEMENT_SIGMA = 4.0
 
 
 #: Said of a retuned parameter that ended at its search bound: the data push it beyond what the refit allows.
@@ -60,6 +68,40 @@ def share_text(share):
     if share <= 0:
         return "none (worse than without it)" if share < -1e-3 else "none"
     return f"{100 * share:.1f} %"
+
+
+def run_disagreements(joints, threshold=DISAGREEMENT_SIGMA):
+    """Parameters that the diagnoses of one model variant on different runs determine differently.
+
+    Each run's joint refit (``joint.tsv``) states a value and a standard deviation
+    for every parameter of the variant.  Two runs of the same machine measure the
+    same physics, so ``z = |v_1 - v_2| / hypot(s_1, s_2)`` beyond ``threshold``
+    says that at least one run carries a systematic error its uncertainty does not
+    state (a method's bias, a changed operating point).
+
+    Parameters
+    ----------
+    joints : dict
+        ``run -> joint table`` (columns ``parameter, value, std, determined``).
+    threshold : float
+        ``z`` beyond which two runs disagree.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``run_1, run_2, parameter, value_1, std_1, value_2, std_2, sigma`` for every pair of runs and
+        parameter determined in both with ``sigma = z > threshold``, largest first.
+    """
+    columns = ["run_1", "run_2", "parameter", "value_1", "std_1", "value_2", "std_2", "sigma"]
+    rows = []
+    for (run_1, first), (run_2, second) in itertools.combinations(joints.items(), 2):
+        both = first[first["determined"].astype(bool)].merge(second[second["determined"].astype(bool)], on="parameter",
+                                                             suffixes=("_1", "_2"))
+        sigma = np.abs(both["value_1"] - both["value_2"]) / np.hypot(both["std_1"], both["std_2"])
+        both = both.assign(run_1=run_1, run_2=run_2, sigma=sigma)
+        rows.append(both.loc[both["sigma"] > threshold, columns])
+    frame = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=columns)
+    return frame.sort_values("sigma", ascending=False, ignore_index=True)
 
 
 def _marked_bounds(fitted):

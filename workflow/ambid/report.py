@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .diagnosis_report import DISAGREEMENT_SIGMA, format_value, run_disagreements
 from .errors import AmbidError
 from .findings import findings_frame, read_findings
 from .io import read_parquet, read_tsv
@@ -334,6 +335,25 @@ def _warnings_block(warnings):
                         "quoted; a `failure` must not be used as it is).")
 
 
+def _run_disagreements(root, runs, variant, shown=4):
+    """A warning per pair of runs whose diagnoses of the last variant determine a parameter differently
+    (`ambid.diagnosis_report.run_disagreements`)."""
+    joints = {run: read_tsv(path) for run in runs if (path := root / f"diagnose/{run}/{variant}/joint.tsv").exists()}
+    out = []
+    for (first, second), rows in run_disagreements(joints).groupby(["run_1", "run_2"], sort=False):
+        listed = "; ".join(f"`{r.parameter}` {format_value(r.value_1, r.std_1)} against {format_value(r.value_2, r.std_2)}"
+                           f" ({r.sigma:.1f} sigma)" for r in rows.head(shown).itertuples())
+        more = f"; {len(rows) - shown} more" if len(rows) > shown else ""
+        out.append({"where": f"diagnoses of {variant} on {first} and {second}", "severity": "warning",
+                    "subject": "the runs disagree",
+                    "message": f"{len(rows)} parameter(s) determined by both runs differ beyond {DISAGREEMENT_SIGMA:g} "
+                               f"combined standard deviations ({first} against {second}): {listed}{more}. At least one "
+                               "run carries a systematic error its uncertainty does not state (a method's bias, such "
+                               "as an FRF at a finite excitation level, or a changed operating point); neither value "
+                               "is to be taken as it is."})
+    return out
+
+
 def _fit_quality(root, machine, run):
     """Fit quality per channel (chi2 per degree of freedom of the output-error fit) with the fitted order and delay."""
     path = root / f"fit/{run}/models.parquet"
@@ -556,6 +576,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Text(diagnosis),
                 Figure(root / diagnose / "figures/fingerprint.png",
                        caption("diagnose_fingerprint", run=run, variant=variant))], level=3))
+    warnings += _run_disagreements(root, identification_runs, variants[-1])
     summary.blocks = verdicts + [_warnings_block(warnings)] + facts
     introduction = caption("introduction")
     return introduction, sections
