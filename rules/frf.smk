@@ -97,6 +97,7 @@ rule bla:
         runtime=10,  # minutes (cluster executors)
     params:
         dpi=config["figures"]["dpi"],
+        settings=config["frf"],
         library=LIBRARY_DIGEST,
     message:
         "{wildcards.machine} {wildcards.run}: best linear approximation of the multisine run, its noise and distortion"

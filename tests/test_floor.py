@@ -14,7 +14,7 @@ from ambid.errors import ConfigError
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.experiment import hidden_effect_rig
 from ambid.floor import (FloorSettings, amplitude_coefficients, excitation_amplitude_squared, frequency_bands,
-                         local_coefficient, peak_coefficient, pooled_noise, smooth_fit_ratio)
+                         local_coefficient, peak_coefficient, pool_variance, pooled_noise, smooth_fit_ratio)
 from ambid.frf import current_etfe, frf_from_log, frf_table, log_arrays, siso_etfe
 from ambid.logs import CHANNELS, identification_frame, validate_identification_log
 from ambid.machine import RADIAL_AXES, machine_from_config
@@ -240,6 +240,20 @@ class TestPooledNoise:
             expected = np.sqrt([variance[max(k - 1, 0) : k + 2].mean() for k in range(variance.size)])
             np.testing.assert_allclose(pooled.loc[rows.index, "noise_std"], expected, rtol=1e-12)
         assert pooled_noise(frame, half_width=0) is frame
+
+    def test_pool_variance_pools_every_column_along_the_first_axis(self):
+        """The array form (`ambid.bla` pools a multisine's noise per output and experiment) is the log's rule per column."""
+        rng = np.random.default_rng(4)
+        variance = rng.exponential(1.0, (40, 3, 2)) * np.linspace(1.0, 3.0, 40)[:, None, None]
+        variance[17, 1, 0] = 1e6  # a line that went wrong
+        pooled = pool_variance(variance, half_width=2)
+        assert pooled.shape == variance.shape and pooled[17, 1, 0] == 1e6
+        for i in range(3):
+            for j in range(2):
+                frame = pd.DataFrame({"excited_axis": "DX", "channel": "V2_DX", "frequency_hz": np.arange(40.0),
+                                      "noise_std": np.sqrt(variance[:, i, j])})
+                np.testing.assert_allclose(pooled[:, i, j], pooled_noise(frame, 2)["noise_std"] ** 2, rtol=1e-12)
+        np.testing.assert_array_equal(pool_variance(variance, 0), variance)
 
     def test_a_step_that_went_wrong_keeps_its_noise_to_itself(self):
         """A step whose loop diverged (its noise 1e7 times its neighbours') keeps its own and is left out of theirs."""

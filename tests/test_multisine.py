@@ -9,6 +9,7 @@ from numpy.testing import assert_allclose
 
 from ambid.bla import _combine, distortion_levels, multisine_frf, multisine_passes, realization_levels
 from ambid.errors import ConfigError, LogError
+from ambid.floor import FloorSettings
 from ambid.logs import (CHANNELS, REFERENCE_CHANNELS, multisine_frame, read_multisine_log, validate_multisine_log,
                         write_multisine_log)
 from ambid.machine import ALL_AXES, RADIAL_AXES
@@ -160,6 +161,24 @@ class TestBLA:
         chi2 = np.mean(np.abs(radial.plant - truth) ** 2 / radial.noise_std**2)
         assert 0.6 < chi2 < 1.6
 
+    def test_two_periods_state_the_noise_once_pooled_over_lines(self, demo_plant):
+        """With the default two periods and two realizations a line states its noise with about 16 degrees of
+        freedom (2 per period pair, 4 experiments, 2 realizations), so |e|^2 / s^2 averages 16 / 14; pooled over 2
+        lines either side (`ambid.floor.pool_variance`, config frf.noise_half_width) it averages about 1."""
+        rig = rig_model("demo20")
+        design = design_multisine(demo_plant, replace(SMALL, frequency_resolution_hz=4.0, periods=2, settle_s=1.0,
+                                                      axial_band_hz=(2.0, 300.0)), seed=2)
+        spectra, _ = run_multisine(rig, design, seed=3, nonlinear=False)
+        chi2 = {}
+        for half_width in (0, 2):
+            _, estimates = multisine_frf([pass_record(design, spectra)], settings=FloorSettings(noise_half_width=half_width))
+            for group, index in (("radial", slice(0, 4)), ("axial", slice(4, 5))):
+                bla = estimates[group]
+                truth = rig.sampled_frequency_response(bla.frequency_hz)[:, index, index]
+                chi2[group, half_width] = np.mean(np.abs(bla.plant - truth) ** 2 / bla.noise_std**2)
+        assert chi2["radial", 0] > 1.08
+        assert 0.9 < chi2["radial", 2] < 1.1 and 0.85 < chi2["axial", 2] < 1.15
+
     def test_distortion_and_level_dependence_are_recovered(self):
         """Synthetic realizations: G_m = G0 + l_m^2 B + S_m + noise; sigma_S and |B| come back."""
         rng = np.random.default_rng(0)
@@ -171,16 +190,51 @@ class TestBLA:
         levels = np.array([1.0, 1.0, 1.0, 1.0])
         estimates = g0 + complex_normal(sigma_s, (4, lines)) + complex_normal(sigma_n, (4, lines))
         noise = np.full((4, lines), sigma_n**2)
-        plant, noise_var, distortion, systematic = _combine(estimates[..., None, None], noise[..., None, None], levels)
+        plant, noise_var, distortion, systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
         assert np.sqrt(np.mean(distortion)) == pytest.approx(sigma_s, rel=0.05)
         assert np.sqrt(np.mean(noise_var)) == pytest.approx(sigma_n / 2, rel=1e-9)
         # two levels: the change with the level is the deterministic part the scatter cannot show
         levels = np.array([1.0, 0.5])
         estimates = g0 + levels[:, None] ** 2 * bias + complex_normal(sigma_n, (2, lines)) / levels[:, None]
         noise = (sigma_n / levels[:, None]) ** 2 * np.ones((2, lines))
-        plant, _, _, systematic = _combine(estimates[..., None, None], noise[..., None, None], levels)
+        plant, _, _, systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
         assert np.sqrt(np.mean(systematic)) == pytest.approx(bias, rel=0.1)
         assert np.mean(np.abs(plant - g0) ** 2 / (noise_var.mean() + systematic[..., 0, 0])) < 2
+
+    @pytest.mark.parametrize("kind", ["coherent", "noise", "incoherent"])
+    def test_zero_level_removes_a_coherent_level_change(self, kind):
+        """Two realizations at each level, G_m = G0 + l_m^2 B + l_m^2 S_m + noise / l_m.  A level change that is the
+        same relative coefficient over neighbouring lines (B = 0.05 G0) is removed at a fraction of the noise G - B would
+        cost and the
+        stated errors cover what is left; a level change below the noise, or one that changes sign from line to line
+        (B/G0 = +-0.05), leaves the top level's BLA as it is (but where a window's coefficient stands out by chance) and its stated
+        errors cover it."""
+        rng = np.random.default_rng(2)
+        lines, g0, sigma_s, sigma_n = 4000, 1.0 + 0.5j, 0.004, 0.004
+
+        def complex_normal(scale, shape):
+            return scale * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2)
+
+        bias = {"coherent": 0.05 * g0, "noise": 0.0005 * g0, "incoherent": 0.05 * g0 * rng.choice([-1, 1], lines)}[kind]
+        levels = np.array([1.0, 0.5, 1.0, 0.5])
+        estimates = (g0 + levels[:, None] ** 2 * (bias + complex_normal(sigma_s, (4, lines)))
+                     + complex_normal(sigma_n, (4, lines)) / levels[:, None])
+        noise = (sigma_n / levels[:, None]) ** 2 * np.ones((4, lines))
+        plant, noise_var, _, systematic, extrapolated = _combine(estimates[..., None, None], noise[..., None, None],
+                                                                 levels, zero_level=True)
+        top, top_noise, _, top_systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
+        error = (plant - g0)[..., 0, 0]
+        stated = (noise_var + systematic)[..., 0, 0]
+        if kind == "coherent":
+            assert extrapolated.all()
+            assert abs(np.mean(error)) < 0.02 * abs(bias)  # the level change is gone
+            assert np.array_equal(noise_var, top_noise)  # the line's noise; the correction's error is systematic
+            assert np.mean(stated) < 0.05 * np.mean(top_noise + top_systematic)  # the level change's power is gone
+            assert 0.6 < np.mean(np.abs(error) ** 2 / stated) < 1.3  # covered, on the safe side
+        else:
+            assert extrapolated.mean() < 0.1  # overlapping windows: chance coefficients come in runs
+            assert np.array_equal(plant[~extrapolated], top[~extrapolated])
+            assert np.mean(np.abs(error) ** 2 / stated) < 1.3
 
     def test_realization_levels(self):
         reference = np.ones((4, 2, 5, 3))

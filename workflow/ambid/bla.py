@@ -27,9 +27,17 @@ periods, ``U_m = mean_p U_mp``, and with the E experiments as columns::
   shows: a deterministic error the scatter of same-level realizations cannot
   see.  With realizations at a lower relative level ``l`` (`ambid.multisine`
   ``levels``) the change ``B = (G - G_l) / (1 - l^2)`` measures it (`_combine`).
+* **Zero level** (config ``frf.multisine_zero_level``, off by default; the
+  stepped sine's repeats do this in `ambid.amplitude`): the BLA at zero excitation is
+  what the linearized model predicts; where the level change is coherent over
+  neighbouring lines (``B = b G``, ``b`` smooth), ``G (1 - b)`` removes it at
+  about an eleventh of the noise ``G - B`` would cost (`_combine`).
 
 The FRF table's ``std`` is the noise of the BLA at the top level and
 ``systematic_std`` the standard deviation of its systematic (nonlinear) error:
+where the zero-level value was taken, the correction's error (shared by
+neighbouring lines), what ``b G`` does not follow of the level change and the
+stochastic distortion; otherwise
 the level dependence's power (noise removed) plus ``sigma_S^2 / n``, or, with
 one level only, ``sigma_S`` itself (the distortion's level stands for the BLA's
 bias, of the same origin and order, sec. 3.4.3).  The comparison's
@@ -46,7 +54,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import LogError
-from .floor import band_labels, frequency_bands
+from .floor import FloorSettings, band_labels, frequency_bands, pool_variance
 from .frf import frf_table
 from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
@@ -62,8 +70,10 @@ _UPPER = {a: CHANNELS.index(f"I_upper_{a}") for a in ALL_AXES}
 _LOWER = {a: CHANNELS.index(f"I_lower_{a}") for a in ALL_AXES}
 
 
+_COEFFICIENT_HALF_WIDTH = 5  # lines either side over which `_combine` fits the relative level coefficient
 _PER_LINE = ("frequency_hz", "plant", "noise_std", "distortion_std", "systematic_std", "current", "current_noise_std",
-             "current_distortion_std", "current_systematic_std", "condition", "compliance")
+             "current_distortion_std", "current_systematic_std", "condition", "compliance", "extrapolated",
+             "current_extrapolated")
 
 
 class GroupBLA:
@@ -83,6 +93,8 @@ class GroupBLA:
         the BLA's systematic error (`_combine`).
     current, current_noise_std, current_distortion_std, current_systematic_std : arrays (L, n, n)
         The same for the differential coil currents ``(I_upper - I_lower) / 2`` against U2 [A/A].
+    extrapolated, current_extrapolated : bool arrays (L, n, n)
+        Where ``plant`` (``current``) is the BLA extrapolated to zero level (`_combine`).
     condition : array (L,)
         Condition number of U (median over the realizations).
     compliance : array (L, n, n)
@@ -104,10 +116,15 @@ def _solve(outputs, inputs):
     return outputs @ pseudo, pseudo
 
 
-def _per_realization(inputs, outputs):
+def _per_realization(inputs, outputs, noise_half_width=0):
     """Per-realization estimates ``G_m`` and their noise variances from the periods.
 
     ``inputs`` (R, E, P, n_in, L), ``outputs`` (R, E, P, n_out, L) per-period spectra.
+    The equation error's variance of each output and experiment is pooled over
+    ``noise_half_width`` lines either side (`ambid.floor.pool_variance`): from P
+    periods one line has ``2 (P - 1)`` degrees of freedom per experiment, too few
+    for ``|e|^2 / s^2`` to average 1 (P = 2: the noise of an output changes
+    smoothly from line to line, the weights ``|W|^2`` of each line stay its own).
     Returns ``G`` (R, L, n_out, n_in), ``noise_var`` (R, L, n_out, n_in), condition numbers (R, L).
     """
     realizations, _, periods = inputs.shape[:3]
@@ -122,7 +139,7 @@ def _per_realization(inputs, outputs):
         u_p = np.transpose(inputs[m], (3, 2, 0, 1))  # (L, n_in, E, P)
         y_p = np.transpose(outputs[m], (3, 2, 0, 1))
         error = y_p - np.einsum("loi,liep->loep", g, u_p)
-        error_var = np.var(error, axis=3, ddof=1) / periods  # (L, n_out, E): noise variance of the mean
+        error_var = pool_variance(np.var(error, axis=3, ddof=1) / periods, noise_half_width)  # (L, n_out, E)
         noise.append(np.einsum("lei,loe->loi", np.abs(pseudo) ** 2, error_var))
         estimates.append(g)
         condition.append(np.linalg.cond(u))
@@ -135,21 +152,25 @@ def realization_levels(reference):
     return np.round(rms / np.max(rms), 3)
 
 
+def _window_sum(values, half_width):
+    """Sum over the lines ``k - half_width .. k + half_width`` that exist (lines on the first axis)."""
+    n = values.shape[0]
+    padded = np.concatenate([np.zeros((1,) + values.shape[1:], dtype=values.dtype), np.cumsum(values, axis=0)])
+    low = np.clip(np.arange(n) - half_width, 0, n)
+    high = np.clip(np.arange(n) + half_width + 1, 0, n)
+    return padded[high] - padded[low]
+
+
 def _smooth_relative(excess, reference, half_width=2):
     """Mean over the neighbouring lines ``k - half_width .. k + half_width`` (those that exist) of
     ``excess / |reference|^2``, times ``|reference|^2`` (lines on the first axis)."""
     scale = np.maximum(np.abs(reference) ** 2, 1e-300)
-    relative = excess / scale
-    n = relative.shape[0]
-    padded = np.concatenate([np.zeros((1,) + relative.shape[1:]), np.cumsum(relative, axis=0)])
-    low = np.clip(np.arange(n) - half_width, 0, n)
-    high = np.clip(np.arange(n) + half_width + 1, 0, n)
-    count = (high - low).reshape((-1,) + (1,) * (relative.ndim - 1))
-    return (padded[high] - padded[low]) / count * scale
+    count = _window_sum(np.ones((excess.shape[0],) + (1,) * (excess.ndim - 1)), half_width)
+    return _window_sum(excess / scale, half_width) / count * scale
 
 
-def _combine(estimates, noise_var, levels):
-    """The BLA at the top level, its noise variance and the variance of its systematic (nonlinear) error.
+def _combine(estimates, noise_var, levels, zero_level=False):
+    """The BLA, its noise variance and the variance of its systematic (nonlinear) error.
 
     Top level (``levels == 1``), ``n`` realizations: ``G = mean G_m``, noise
     ``sum sigma_m^2 / n^2``, stochastic distortion of one realization
@@ -162,6 +183,32 @@ def _combine(estimates, noise_var, levels):
     the systematic variance.  Without a lower level the systematic variance is
     ``sigma_S^2``: the distortion's level stands for the BLA's deviation, which
     is of the same order (sec. 3.4).
+
+    With ``zero_level`` (config ``frf.multisine_zero_level``) the BLA is taken to zero
+    excitation level where the level change is coherent: ``B = b G`` with a
+    relative level coefficient ``b`` fitted (least squares weighted by ``var B``)
+    over 11 neighbouring lines, as the stepped sine's amplitude coefficient is
+    interpolated (`ambid.amplitude`: the coefficient, not the correction, is
+    smooth in frequency); ``var b`` from the noise of ``B`` or, where larger,
+    from its scatter about ``b G``.  A line takes ``G (1 - b)`` where ``b``
+    stands out (``|b|^2 > 4 var b``) and the correction's noise ``|G|^2 var b``
+    plus what ``b G`` does not follow of ``B`` (its power beyond the noise, as
+    above) is below the level change's power it replaces.  Line by line,
+    ``G - B`` would cost ``(lambda - 1)^2 noise + lambda^2 noise_l`` (``lambda =
+    1 / (1 - l^2)``: seven times the top level's noise for ``l = 0.5``); the
+    fitted coefficient costs about an eleventh of ``var B``.  Where the level
+    change is not coherent (the stochastic distortion's scatter between
+    realizations dominates it) nothing changes.  The stochastic distortion of
+    the top level stays in the systematic variance.
+
+    Returns
+    -------
+    plant, noise, distortion, systematic : arrays
+        The BLA (at zero level where taken), its noise variance, ``sigma_S^2``
+        at the top level and the systematic variance of the value returned.
+    extrapolated : bool array
+        Where the zero-level value was taken (all false without ``zero_level``
+        or a lower level).
     """
     top = levels >= 1.0 - 1e-9
     n = int(top.sum())
@@ -173,22 +220,52 @@ def _combine(estimates, noise_var, levels):
         distortion = np.full(plant.shape, np.nan)
     lower = levels[~top]
     if lower.size == 0:
-        return plant, noise, distortion, distortion
+        return plant, noise, distortion, distortion, np.zeros(plant.shape, dtype=bool)
     level = lower.min()
     low = levels == level
-    bias = (plant - estimates[low].mean(axis=0)) / (1 - level**2)
-    bias_var = (noise + noise_var[low].sum(axis=0) / low.sum() ** 2) / (1 - level**2) ** 2
-    excess = np.abs(bias) ** 2 - bias_var
-    # smoothed where the noise dominates; the line's own value where the level effect stands out
-    # (a lightly damped resonance moving with the level: sharper than any smoothing window)
-    significant = np.abs(bias) ** 2 > 4 * bias_var  # 2 % of pure-noise lines
-    level_var = np.maximum(np.where(significant, np.maximum(excess, _smooth_relative(excess, plant)),
-                                    _smooth_relative(excess, plant)), 0.0)
-    systematic = level_var + (np.nan_to_num(distortion) / n if n > 1 else 0.0)
-    return plant, noise, distortion, systematic
+    low_plant, low_noise = estimates[low].mean(axis=0), noise_var[low].sum(axis=0) / low.sum() ** 2
+    lever = 1.0 / (1 - level**2)
+    bias = (plant - low_plant) * lever
+    # the stochastic distortion (level^2 smaller at the low level) scatters B as the noise does
+    stochastic = np.nan_to_num(distortion)
+    stochastic_share = 1.0 / n + level**4 / low.sum()
+    bias_var = (noise + low_noise + stochastic_share * stochastic) * lever**2
+    level_var = _level_variance(bias, bias_var, plant)
+    systematic = level_var + (stochastic / n if n > 1 else 0.0)
+    extrapolated = np.zeros(plant.shape, dtype=bool)
+    if zero_level:
+        # B = b G locally: the relative level coefficient b, least squares over 11 lines weighted by B's variance
+        weight = 1.0 / np.maximum(bias_var, 1e-300)
+        gram = _window_sum(weight * np.abs(plant) ** 2, _COEFFICIENT_HALF_WIDTH)
+        coefficient = _window_sum(weight * np.conj(plant) * bias, _COEFFICIENT_HALF_WIDTH) / np.maximum(gram, 1e-300)
+        residual = bias - coefficient * plant  # what b G does not follow
+        # the coefficient's variance from the noise of B, or from the scatter about b G where that is larger (a level
+        # change that is not one coefficient over the window)
+        count = _window_sum(np.ones(weight.shape), _COEFFICIENT_HALF_WIDTH)
+        scatter = _window_sum(weight * np.abs(residual) ** 2, _COEFFICIENT_HALF_WIDTH) / np.maximum(count - 1, 1)
+        coefficient_var = np.maximum(scatter, 1.0) / np.maximum(gram, 1e-300)
+        residual_var = _level_variance(residual, bias_var, plant)
+        correction_var = np.abs(plant) ** 2 * coefficient_var
+        coherent = np.abs(coefficient) ** 2 > 4 * coefficient_var  # 2 % of windows of pure noise
+        extrapolated = coherent & (correction_var + residual_var < level_var)
+        plant = np.where(extrapolated, plant * (1 - coefficient), plant)
+        # the correction's error is shared by the window's lines: systematic, not the line's own noise
+        systematic = np.where(extrapolated, correction_var + residual_var + (stochastic / n if n > 1 else 0.0),
+                              systematic)
+    return plant, noise, distortion, systematic, extrapolated
 
 
-def group_bla(spectra, reference, excites, frequency_hz, axes):
+def _level_variance(change, change_var, plant):
+    """The power of a level change beyond its noise: averaged over 5 lines relative to ``|G|^2`` where the noise
+    dominates, the line's own where it stands out (``|B|^2 > 4 var B``, 2 % of pure-noise lines): a lightly damped
+    resonance moving with the level is sharper than any smoothing window."""
+    excess = np.abs(change) ** 2 - change_var
+    smooth = _smooth_relative(excess, plant)
+    significant = np.abs(change) ** 2 > 4 * change_var
+    return np.maximum(np.where(significant, np.maximum(excess, smooth), smooth), 0.0)
+
+
+def group_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
     """The BLA of one input group at the lines that excite it.
 
     Parameters
@@ -202,6 +279,11 @@ def group_bla(spectra, reference, excites, frequency_hz, axes):
     frequency_hz : array (L,)
     axes : list of str
         The group's axes.
+    settings : ambid.floor.FloorSettings, optional
+        ``multisine_zero_level``: the BLA taken to zero excitation level where
+        its level change is coherent (`_combine`); ``noise_half_width``: lines
+        over which the noise is pooled (`_per_realization`).  Default:
+        `FloorSettings()`.
 
     Returns
     -------
@@ -225,10 +307,13 @@ def group_bla(spectra, reference, excites, frequency_hz, axes):
     v = part[:, :, :, [_V2[a] for a in axes]]
     current = 0.5 * (part[:, :, :, [_UPPER[a] for a in axes]] - part[:, :, :, [_LOWER[a] for a in axes]])
     levels = realization_levels(reference)
-    estimates, noise, condition = _per_realization(u, v)
-    plant, noise_var, distortion_var, systematic_var = _combine(estimates, noise, levels)
-    estimates, noise, _ = _per_realization(u, current)
-    amplifier, current_noise_var, current_distortion_var, current_systematic_var = _combine(estimates, noise, levels)
+    settings = settings or FloorSettings()
+    estimates, noise, condition = _per_realization(u, v, settings.noise_half_width)
+    plant, noise_var, distortion_var, systematic_var, extrapolated = _combine(estimates, noise, levels,
+                                                                              settings.multisine_zero_level)
+    estimates, noise, _ = _per_realization(u, current, settings.noise_half_width)
+    amplifier, current_noise_var, current_distortion_var, current_systematic_var, current_extrapolated = _combine(
+        estimates, noise, levels, settings.multisine_zero_level)
     condition = np.median(condition[levels >= 1.0 - 1e-9], axis=0)
     # measured dynamic compliance E_u -> V2: the positions against the reference excitation
     r = reference[:, :, index][..., lines]  # (R, E, n, L)
@@ -242,10 +327,10 @@ def group_bla(spectra, reference, excites, frequency_hz, axes):
                     systematic_std=np.sqrt(systematic_var), current=amplifier,
                     current_noise_std=np.sqrt(current_noise_var), current_distortion_std=np.sqrt(current_distortion_var),
                     current_systematic_std=np.sqrt(current_systematic_var), condition=condition, compliance=compliance,
-                    realizations=spectra.shape[0], levels=np.unique(levels))
+                    extrapolated=extrapolated, current_extrapolated=current_extrapolated, realizations=spectra.shape[0], levels=np.unique(levels))
 
 
-def siso_bla(spectra, reference, excites, frequency_hz, axes):
+def siso_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
     """SISO BLA of a per-axis design: ``V2_j / U2_i`` in the experiment exciting axis i only (as the stepped sine).
 
     Returns
@@ -253,6 +338,7 @@ def siso_bla(spectra, reference, excites, frequency_hz, axes):
     dict
         ``(output, input) -> (frequency_hz, G, noise_std, distortion_std)``; empty when no experiment excites one axis alone.
     """
+    settings = settings or FloorSettings()
     out = {}
     active = np.abs(reference).sum(axis=(0, 3)) > 0  # (E, 5)
     for input_axis in axes:
@@ -265,14 +351,14 @@ def siso_bla(spectra, reference, excites, frequency_hz, axes):
         u = part[:, :, :, [_U2[input_axis]]]
         levels = realization_levels(reference)
         for output in axes:
-            estimates, noise, _ = _per_realization(u, part[:, :, :, [_V2[output]]])
-            g, noise_var, _, systematic_var = _combine(estimates, noise, levels)
+            estimates, noise, _ = _per_realization(u, part[:, :, :, [_V2[output]]], settings.noise_half_width)
+            g, noise_var, _, systematic_var, _ = _combine(estimates, noise, levels, settings.multisine_zero_level)
             out[(output, input_axis)] = (np.asarray(frequency_hz)[lines], g[:, 0, 0], np.sqrt(noise_var[:, 0, 0]),
                                          np.sqrt(systematic_var[:, 0, 0]))
     return out
 
 
-def pass_bla(spectra, reference, excites, frequency_hz, design):
+def pass_bla(spectra, reference, excites, frequency_hz, design, settings=None):
     """Every estimate of one pass: radial MIMO group, axial group, SISO (per-axis designs).
 
     Returns
@@ -282,10 +368,11 @@ def pass_bla(spectra, reference, excites, frequency_hz, design):
     """
     excited_axes = [a for a in ALL_AXES if excites[:, ALL_AXES.index(a)].any()]
     radial = [a for a in RADIAL_AXES if a in excited_axes]
-    out = {"radial": group_bla(spectra, reference, excites, frequency_hz, radial) if radial else None,
-           "axial": (group_bla(spectra, reference, excites, frequency_hz, [AXIAL_AXIS])
+    out = {"radial": group_bla(spectra, reference, excites, frequency_hz, radial, settings) if radial else None,
+           "axial": (group_bla(spectra, reference, excites, frequency_hz, [AXIAL_AXIS], settings)
                      if AXIAL_AXIS in excited_axes else None),
-           "siso": siso_bla(spectra, reference, excites, frequency_hz, radial) if design == "per_axis" else {}}
+           "siso": (siso_bla(spectra, reference, excites, frequency_hz, radial, settings)
+                    if design == "per_axis" else {})}
     return out
 
 
@@ -359,7 +446,7 @@ def multisine_passes(frame):
     return out
 
 
-def multisine_frf(passes, design="orthogonal"):
+def multisine_frf(passes, design="orthogonal", settings=None):
     """The FRF of a multisine run: the BLA of every pass, the zoom merged into the coarse pass.
 
     Parameters
@@ -368,6 +455,13 @@ def multisine_frf(passes, design="orthogonal"):
         `multisine_passes`; the first is the coarse pass, a later one named ``zoom`` refines it.
     design : str
         ``per_axis`` adds the SISO ratios.
+    settings : ambid.floor.FloorSettings, optional
+        Config ``frf`` (default `FloorSettings()`): with ``multisine_zero_level``
+        the BLA taken to zero excitation level where its level change is
+        coherent (`_combine`); the noise pooled over ``noise_half_width`` lines
+        either side (`_per_realization`).  The zoom's planning
+        (`ambid.multisine.identify_multisine`) uses the BLA at the level the zoom
+        will run.
 
     Returns
     -------
@@ -376,7 +470,8 @@ def multisine_frf(passes, design="orthogonal"):
     estimates : dict
         ``radial``, ``axial`` (merged `GroupBLA`), ``siso``, and ``by_pass`` (name -> `pass_bla`).
     """
-    by_pass = {p["name"]: pass_bla(p["spectra"], p["reference"], p["excites"], p["frequency_hz"], design) for p in passes}
+    by_pass = {p["name"]: pass_bla(p["spectra"], p["reference"], p["excites"], p["frequency_hz"], design, settings)
+               for p in passes}
     radial = axial = None
     siso = {}
     for p in passes:
@@ -393,8 +488,8 @@ def bla_frf_table(radial, axial, siso=None):
     ``mimo``: the radial BLA matrix; ``siso``: ``Z/Z`` from the axial group and, for
     per-axis designs, every radial ``V2_j / U2_i``; ``current``: the diagonal of the
     coil-current BLA of both groups.  ``std`` is the noise standard deviation of the
-    BLA, ``systematic_std`` the standard deviation ``sigma_S`` of the nonlinear
-    distortion (NaN with one realization).
+    BLA, ``systematic_std`` the standard deviation of its systematic (nonlinear)
+    error (`_combine`; NaN with one realization at one level).
     """
     siso_noise, siso_distortion, current_noise, current_distortion = {}, {}, {}, {}
     for (output, input_axis), (f, g, noise, distortion) in (siso or {}).items():

@@ -61,7 +61,7 @@ from .machine import AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
-           "smooth_fit_ratio", "pooled_noise", "systematic_floor"]
+           "smooth_fit_ratio", "pooled_noise", "pool_variance", "systematic_floor"]
 
 _KEYS = ["estimator", "output", "input"]
 
@@ -93,7 +93,13 @@ class FloorSettings:
         estimate (`ambid.amplitude.zero_amplitude`; default true).
     noise_half_width : int
         The logged noise of each step is pooled with this many steps either side
-        (`pooled_noise`; 0: each step's own estimate).
+        (`pooled_noise`; 0: each step's own estimate); a multisine's per-line
+        noise is pooled over as many lines (`pool_variance`).
+    multisine_zero_level : bool
+        A multisine run at two levels: its BLA taken to zero level where the
+        level change is one relative coefficient over neighbouring lines
+        (`ambid.bla`; default false: on demo20's rig it removes the low-frequency
+        level bias but widens the first resonance's damping error, README).
     """
 
     fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
@@ -103,13 +109,15 @@ class FloorSettings:
     scatter_half_width: int = 10
     zero_amplitude: bool = True
     noise_half_width: int = 2
+    multisine_zero_level: bool = False
 
     def __post_init__(self):
         floors = dict(self.fallback_floor)
         if set(floors) != set(FAMILIES) or any(not (0 <= v < 1) for v in floors.values()):
             raise ConfigError("frf.fallback_floor", f"needs a relative floor in [0, 1) for each of {list(FAMILIES)}")
-        if not isinstance(self.zero_amplitude, bool):
-            raise ConfigError("frf.zero_amplitude", "must be true or false")
+        for key in ("zero_amplitude", "multisine_zero_level"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"frf.{key}", "must be true or false")
         for key, value, least in (("min_band_points", self.min_band_points, 5), ("min_pairs", self.min_pairs, 2),
                                   ("smooth_half_width", self.smooth_half_width, 2),
                                   ("scatter_half_width", self.scatter_half_width, 2),
@@ -372,13 +380,39 @@ def pooled_noise(frame, half_width=2):
     pooled = np.empty_like(variance)
     for rows in frame.groupby(keys, sort=False).indices.values():  # positions, whatever the frame's index
         rows = rows[np.argsort(frequency[rows], kind="stable")]
-        padded = np.pad(variance[rows], half_width, constant_values=np.nan)
-        window = np.lib.stride_tricks.sliding_window_view(padded, 2 * half_width + 1)
-        typical = np.nanmedian(window, axis=1, keepdims=True)
-        window = np.where(window > OUTLYING_VARIANCE * typical, np.nan, window)
-        own = variance[rows]
-        pooled[rows] = np.where(own > OUTLYING_VARIANCE * typical[:, 0], own, np.nanmean(window, axis=1))
+        pooled[rows] = pool_variance(variance[rows], half_width)
     return frame.assign(noise_std=np.sqrt(pooled))
+
+
+def pool_variance(variance, half_width=2):
+    """Noise variances pooled with their neighbours along the first axis (frequency order), outliers kept apart.
+
+    The mean over ``k - half_width .. k + half_width`` (those that exist) of each
+    column; a variance above `OUTLYING_VARIANCE` times its window's median stays
+    out of its neighbours' means and keeps its own value (`pooled_noise`, whose
+    rule this is; `ambid.bla` pools the multisine's per-line noise the same way).
+
+    Parameters
+    ----------
+    variance : array (L, ...)
+    half_width : int
+        0 returns a copy.
+
+    Returns
+    -------
+    numpy.ndarray
+        The same shape.
+    """
+    variance = np.asarray(variance, dtype=float)
+    if half_width == 0 or variance.shape[0] == 0:
+        return variance.copy()
+    pad = [(half_width, half_width)] + [(0, 0)] * (variance.ndim - 1)
+    padded = np.pad(variance, pad, constant_values=np.nan)
+    window = np.lib.stride_tricks.sliding_window_view(padded, 2 * half_width + 1, axis=0)  # (L, ..., window)
+    typical = np.nanmedian(window, axis=-1)
+    outlying = OUTLYING_VARIANCE * typical
+    window = np.where(window > outlying[..., None], np.nan, window)
+    return np.where(variance > outlying, variance, np.nanmean(window, axis=-1))
 
 
 def excitation_amplitude_squared(table, arrays):

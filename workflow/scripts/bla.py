@@ -3,10 +3,12 @@
 import numpy as np
 
 from ambid.bla import distortion_levels, line_levels, multisine_frf, multisine_passes
+from ambid.floor import FloorSettings
 from ambid.frf import channel
 from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import read_multisine_log
 from ambid.machine import ALL_AXES, RADIAL_AXES
+from ambid.plausibility import FRF_SETTINGS
 from ambid.plots import bla_distortion, bode_measured, save_figure
 from ambid.uff import frf_channels, write_uff58
 
@@ -16,14 +18,17 @@ machine, run = snakemake.wildcards.machine, snakemake.wildcards.run
 frame, info = read_multisine_log(snakemake.input.log)
 passes = multisine_passes(frame)
 design = info["metadata"].get("design", "orthogonal")
-table, estimates = multisine_frf(passes, design)
+floor_settings = FloorSettings.from_config({k: v for k, v in snakemake.params.settings.items() if k not in FRF_SETTINGS})
+table, estimates = multisine_frf(passes, design, floor_settings)
 for p in passes:
     result = estimates["by_pass"][p["name"]]
     group = result["radial"]
     if group is not None:
-        log.info("%s pass: %d radial lines %.4g-%.4g Hz, %d realization(s) at level(s) %s, U condition median %.2f",
+        log.info("%s pass: %d radial lines %.4g-%.4g Hz, %d realization(s) at level(s) %s, U condition median %.2f; "
+                 "%.0f %% of the plant's and %.0f %% of the currents' values extrapolated to zero level",
                  p["name"], group.frequency_hz.size, group.frequency_hz.min(), group.frequency_hz.max(),
-                 p["spectra"].shape[0], group.levels.tolist(), np.median(group.condition))
+                 p["spectra"].shape[0], group.levels.tolist(), np.median(group.condition),
+                 100 * group.extrapolated.mean(), 100 * group.current_extrapolated.mean())
 write_parquet(table, snakemake.output.frf,
               units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
                      "std": "m/A (A/A: current)", "systematic_std": "m/A (A/A: current)", "condition": "-"},
@@ -31,7 +36,9 @@ write_parquet(table, snakemake.output.frf,
                                     "method": "multisine", "estimators": sorted(set(table["estimator"])),
                                     "std": "noise of the BLA (scatter between periods)",
                                     "systematic_std": "nonlinear distortion of the BLA (scatter between realizations "
-                                                      "and the change between excitation levels)"})
+                                                      "and the change between excitation levels)",
+                                    "zero_level": floor_settings.multisine_zero_level,
+                                    "noise_pooled_lines": 2 * floor_settings.noise_half_width + 1})
 coarse = passes[0]
 excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
 levels = distortion_levels(coarse["spectra"], coarse["role"], coarse["frequency_hz"], coarse["excites"], axes=excited_axes)
