@@ -7,7 +7,8 @@ import pytest
 import yaml
 from numpy.testing import assert_allclose
 
-from ambid.effects import EFFECTS, effect_from_config
+from ambid.effects import EFFECTS, at_excitation_level, effect_from_config
+from ambid.bearing import force_derivatives
 from ambid.errors import ConfigError
 from ambid.plant import Plant, damping_ratio
 
@@ -199,6 +200,35 @@ class TestActuatorCoefficients:
         assert kx == pytest.approx([1.1, 1.02**2, 1.0, 1.0])  # kx ~ k i_b^2
         axial = np.array(after.axial_stiffness) / np.array(before.axial_stiffness)
         assert axial == pytest.approx([0.9 * 1.05, 0.9 * 1.05**2])
+
+    def test_the_force_law_averaged_over_an_excitation(self, demo_machine):
+        """Current alone: kx (1 + E[i_c^2] / i_b^2), ki unchanged (eq. 3.6 averaged, exact); a position excursion
+        correlated with the current changes both, as a Monte Carlo average of the force law's derivatives says; the
+        variant's own effects stay its own and apply on top."""
+        magnet = demo_machine.radial_electromagnets[0]
+        bias, gap = magnet.bias_current_a, magnet.nominal_air_gap_m
+        own = effect_from_config({"name": "actuator_coefficients", "parameters": {"bias_current_scale": 1.01}}, "e",
+                                 demo_machine)
+        machine = demo_machine.with_effects((own,))
+        shifted = at_excitation_level(machine, {"DX": [0.02 * bias**2, 0.0, 0.0], "NY": [0.01 * bias**2, 0.0, 0.0]})
+        assert shifted.effects == machine.effects
+        before, after = Plant(machine), Plant(shifted)
+        ki, kx = after.current_stiffness / before.current_stiffness, after.position_stiffness / before.position_stiffness
+        assert ki == pytest.approx([1.0, 1.0, 1.0, 1.0], abs=1e-9)
+        assert kx == pytest.approx([1.02, 1.0, 1.0, 1.01], rel=1e-9)
+        # current and position together, correlated -0.8: the Gauss-Hermite mean against 4e6 samples
+        var_i, var_x = (0.1 * bias) ** 2, (0.05 * gap) ** 2
+        cov = -0.8 * np.sqrt(var_i * var_x)
+        correlated = Plant(at_excitation_level(demo_machine, {"DY": [var_i, var_x, cov]}))
+        rng = np.random.default_rng(0)
+        current, position = np.linalg.cholesky([[var_i, cov], [cov, var_x]]) @ rng.standard_normal((2, 4_000_000))
+        _, ki_all, kx_all = force_derivatives(demo_machine.radial_electromagnets[1], bias + current, bias - current, position)
+        _, ki0, kx0 = force_derivatives(demo_machine.radial_electromagnets[1], bias, bias, 0.0)
+        nominal = Plant(demo_machine)
+        assert correlated.current_stiffness[1] / nominal.current_stiffness[1] == pytest.approx(ki_all.mean() / ki0, rel=2e-4)
+        assert correlated.position_stiffness[1] / nominal.position_stiffness[1] == pytest.approx(kx_all.mean() / kx0, rel=2e-4)
+        with pytest.raises(ConfigError, match="excitation.DX"):
+            at_excitation_level(machine, {"DX": [-1.0, 0.0, 0.0]})
 
     def test_one_value_per_axis_or_one_for_all(self, demo_machine):
         with pytest.raises(ConfigError, match="one per axis"):

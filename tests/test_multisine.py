@@ -7,15 +7,17 @@ import pytest
 import yaml
 from numpy.testing import assert_allclose
 
-from ambid.bla import _combine, distortion_levels, multisine_frf, multisine_passes, realization_levels
+from ambid.bla import (_combine, distortion_levels, excitation_covariance, multisine_frf, multisine_passes,
+                       realization_levels)
+from ambid.compare import at_run_level
 from ambid.errors import ConfigError, LogError
-from ambid.floor import FloorSettings
 from ambid.logs import (CHANNELS, REFERENCE_CHANNELS, multisine_frame, read_multisine_log, validate_multisine_log,
                         write_multisine_log)
 from ambid.machine import ALL_AXES, RADIAL_AXES
 from ambid.multisine import (MultisineSettings, crest_factor, design_multisine, harmonic_grid, identify_multisine,
                              multisine_settings_from_config, orthogonal_matrix, pass_record, reduce_crest_factor,
                              run_multisine, _waveform)
+from ambid.plant import Plant
 from ambid.rig import RigModel, rig_from_config
 from ambid.zoom import band_lines, outside_bands, zoom_bands
 
@@ -171,7 +173,7 @@ class TestBLA:
         spectra, _ = run_multisine(rig, design, seed=3, nonlinear=False)
         chi2 = {}
         for half_width in (0, 2):
-            _, estimates = multisine_frf([pass_record(design, spectra)], settings=FloorSettings(noise_half_width=half_width))
+            _, estimates = multisine_frf([pass_record(design, spectra)], noise_half_width=half_width)
             for group, index in (("radial", slice(0, 4)), ("axial", slice(4, 5))):
                 bla = estimates[group]
                 truth = rig.sampled_frequency_response(bla.frequency_hz)[:, index, index]
@@ -190,51 +192,38 @@ class TestBLA:
         levels = np.array([1.0, 1.0, 1.0, 1.0])
         estimates = g0 + complex_normal(sigma_s, (4, lines)) + complex_normal(sigma_n, (4, lines))
         noise = np.full((4, lines), sigma_n**2)
-        plant, noise_var, distortion, systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
+        plant, noise_var, distortion, systematic = _combine(estimates[..., None, None], noise[..., None, None], levels)
         assert np.sqrt(np.mean(distortion)) == pytest.approx(sigma_s, rel=0.05)
         assert np.sqrt(np.mean(noise_var)) == pytest.approx(sigma_n / 2, rel=1e-9)
         # two levels: the change with the level is the deterministic part the scatter cannot show
         levels = np.array([1.0, 0.5])
         estimates = g0 + levels[:, None] ** 2 * bias + complex_normal(sigma_n, (2, lines)) / levels[:, None]
         noise = (sigma_n / levels[:, None]) ** 2 * np.ones((2, lines))
-        plant, _, _, systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
+        plant, _, _, systematic = _combine(estimates[..., None, None], noise[..., None, None], levels)
         assert np.sqrt(np.mean(systematic)) == pytest.approx(bias, rel=0.1)
         assert np.mean(np.abs(plant - g0) ** 2 / (noise_var.mean() + systematic[..., 0, 0])) < 2
 
-    @pytest.mark.parametrize("kind", ["coherent", "noise", "incoherent"])
-    def test_zero_level_removes_a_coherent_level_change(self, kind):
-        """Two realizations at each level, G_m = G0 + l_m^2 B + l_m^2 S_m + noise / l_m.  A level change that is the
-        same relative coefficient over neighbouring lines (B = 0.05 G0) is removed at a fraction of the noise G - B would
-        cost and the
-        stated errors cover what is left; a level change below the noise, or one that changes sign from line to line
-        (B/G0 = +-0.05), leaves the top level's BLA as it is (but where a window's coefficient stands out by chance) and its stated
-        errors cover it."""
-        rng = np.random.default_rng(2)
-        lines, g0, sigma_s, sigma_n = 4000, 1.0 + 0.5j, 0.004, 0.004
-
-        def complex_normal(scale, shape):
-            return scale * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2)
-
-        bias = {"coherent": 0.05 * g0, "noise": 0.0005 * g0, "incoherent": 0.05 * g0 * rng.choice([-1, 1], lines)}[kind]
-        levels = np.array([1.0, 0.5, 1.0, 0.5])
-        estimates = (g0 + levels[:, None] ** 2 * (bias + complex_normal(sigma_s, (4, lines)))
-                     + complex_normal(sigma_n, (4, lines)) / levels[:, None])
-        noise = (sigma_n / levels[:, None]) ** 2 * np.ones((4, lines))
-        plant, noise_var, _, systematic, extrapolated = _combine(estimates[..., None, None], noise[..., None, None],
-                                                                 levels, zero_level=True)
-        top, top_noise, _, top_systematic, _ = _combine(estimates[..., None, None], noise[..., None, None], levels)
-        error = (plant - g0)[..., 0, 0]
-        stated = (noise_var + systematic)[..., 0, 0]
-        if kind == "coherent":
-            assert extrapolated.all()
-            assert abs(np.mean(error)) < 0.02 * abs(bias)  # the level change is gone
-            assert np.array_equal(noise_var, top_noise)  # the line's noise; the correction's error is systematic
-            assert np.mean(stated) < 0.05 * np.mean(top_noise + top_systematic)  # the level change's power is gone
-            assert 0.6 < np.mean(np.abs(error) ** 2 / stated) < 1.3  # covered, on the safe side
-        else:
-            assert extrapolated.mean() < 0.1  # overlapping windows: chance coefficients come in runs
-            assert np.array_equal(plant[~extrapolated], top[~extrapolated])
-            assert np.mean(np.abs(error) ** 2 / stated) < 1.3
+    def test_the_run_states_its_excitation_and_the_model_takes_it(self, demo_plant):
+        """`excitation_covariance` sums |c|^2 / 2 (Re(c conj(v)) / 2) over the lines of the top level's
+        (I_upper - I_lower) / 2 and V2; `at_run_level` linearizes the model there (a note says so) and leaves a run
+        without that record alone."""
+        spectra = np.zeros((2, 4, 2, len(CHANNELS), 3), dtype=complex)
+        reference = np.ones((2, 4, 5, 3))
+        reference[1] *= 0.5  # the second realization at half level: left out
+        spectra[0, :, :, CHANNELS.index("I_upper_DX")] = [0.3, 0.4j, 0.0]
+        spectra[0, :, :, CHANNELS.index("I_lower_DX")] = [-0.3, -0.4j, 0.0]
+        spectra[0, :, :, CHANNELS.index("V2_DX")] = [-1e-5, 0.0, 2e-5]
+        spectra[1, :, :, CHANNELS.index("I_upper_DX")] = 5.0
+        excitation = excitation_covariance(spectra, reference)
+        assert excitation["DX"] == pytest.approx([(0.3**2 + 0.4**2) / 2, (1e-10 + 4e-10) / 2, -0.3e-5 / 2])
+        assert excitation["NY"] == [0.0, 0.0, 0.0]
+        machine = demo_plant.machine
+        same, none = at_run_level(machine, {"run": "x"}, "compare")
+        assert same is machine and none == []
+        shifted, notes = at_run_level(machine, {"coil_mean_square_a2": 1, "excitation_covariance": excitation}, "compare")
+        kx = Plant(shifted).position_stiffness / Plant(machine).position_stiffness
+        assert kx[1:] == pytest.approx([1.0, 1.0, 1.0]) and kx[0] > 1
+        assert [n.code for n in notes] == ["excitation_level"] and f"DX {kx[0]:.4f}" in notes[0].message
 
     def test_realization_levels(self):
         reference = np.ones((4, 2, 5, 3))

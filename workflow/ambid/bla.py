@@ -27,18 +27,16 @@ periods, ``U_m = mean_p U_mp``, and with the E experiments as columns::
   shows: a deterministic error the scatter of same-level realizations cannot
   see.  With realizations at a lower relative level ``l`` (`ambid.multisine`
   ``levels``) the change ``B = (G - G_l) / (1 - l^2)`` measures it (`_combine`).
-* **Zero level** (config ``frf.multisine_zero_level``, off by default; the
-  stepped sine's repeats do this in `ambid.amplitude`): the BLA at zero excitation is
-  what the linearized model predicts; where the level change is coherent over
-  neighbouring lines (``B = b G``, ``b`` smooth), ``G (1 - b)`` removes it at
-  about an eleventh of the noise ``G - B`` would cost (`_combine`).
+* **The level, recorded** (`excitation_covariance`): each axis' coil-current and
+  position variances and covariance at the top level, which the force law is
+  averaged over: the model compared with the BLA is linearized there
+  (`ambid.effects.at_excitation_level`), since the BLA is not the small-signal
+  plant.
 
-The FRF table's ``std`` is the noise of the BLA at the top level and
-``systematic_std`` the standard deviation of its systematic (nonlinear) error:
-where the zero-level value was taken, the correction's error (shared by
-neighbouring lines), what ``b G`` does not follow of the level change and the
-stochastic distortion; otherwise
-the level dependence's power (noise removed) plus ``sigma_S^2 / n``, or, with
+The FRF table's ``std`` is the noise of the BLA at the top level (pooled over
+neighbouring lines) and ``systematic_std`` the standard deviation of its
+systematic (nonlinear) error: the level dependence's power (noise and the
+stochastic distortion's scatter removed) plus ``sigma_S^2 / n``, or, with
 one level only, ``sigma_S`` itself (the distortion's level stands for the BLA's
 bias, of the same origin and order, sec. 3.4.3).  The comparison's
 uncertainty ``hypot(std, systematic_std)`` then covers the nonlinear error
@@ -54,14 +52,15 @@ import numpy as np
 import pandas as pd
 
 from .errors import LogError
-from .floor import FloorSettings, band_labels, frequency_bands, pool_variance
+from .floor import band_labels, frequency_bands, pool_variance
 from .frf import frf_table
 from .logs import CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 from .zoom import outside_bands
 
 __all__ = ["GroupBLA", "group_bla", "pass_bla", "siso_bla", "distortion_levels", "merge_passes", "bla_frf_table",
-           "multisine_passes", "multisine_frf", "line_levels", "realization_levels", "DEFAULT_BANDS_HZ"]
+           "multisine_passes", "multisine_frf", "line_levels", "realization_levels", "excitation_covariance",
+           "DEFAULT_BANDS_HZ"]
 
 DEFAULT_BANDS_HZ = (0.0, 10.0, 100.0, 300.0, 1000.0, np.inf)
 _U2 = {a: CHANNELS.index(f"U2_{a}") for a in ALL_AXES}
@@ -70,10 +69,8 @@ _UPPER = {a: CHANNELS.index(f"I_upper_{a}") for a in ALL_AXES}
 _LOWER = {a: CHANNELS.index(f"I_lower_{a}") for a in ALL_AXES}
 
 
-_COEFFICIENT_HALF_WIDTH = 5  # lines either side over which `_combine` fits the relative level coefficient
 _PER_LINE = ("frequency_hz", "plant", "noise_std", "distortion_std", "systematic_std", "current", "current_noise_std",
-             "current_distortion_std", "current_systematic_std", "condition", "compliance", "extrapolated",
-             "current_extrapolated")
+             "current_distortion_std", "current_systematic_std", "condition", "compliance")
 
 
 class GroupBLA:
@@ -93,8 +90,6 @@ class GroupBLA:
         the BLA's systematic error (`_combine`).
     current, current_noise_std, current_distortion_std, current_systematic_std : arrays (L, n, n)
         The same for the differential coil currents ``(I_upper - I_lower) / 2`` against U2 [A/A].
-    extrapolated, current_extrapolated : bool arrays (L, n, n)
-        Where ``plant`` (``current``) is the BLA extrapolated to zero level (`_combine`).
     condition : array (L,)
         Condition number of U (median over the realizations).
     compliance : array (L, n, n)
@@ -152,63 +147,40 @@ def realization_levels(reference):
     return np.round(rms / np.max(rms), 3)
 
 
-def _window_sum(values, half_width):
-    """Sum over the lines ``k - half_width .. k + half_width`` that exist (lines on the first axis)."""
-    n = values.shape[0]
-    padded = np.concatenate([np.zeros((1,) + values.shape[1:], dtype=values.dtype), np.cumsum(values, axis=0)])
-    low = np.clip(np.arange(n) - half_width, 0, n)
-    high = np.clip(np.arange(n) + half_width + 1, 0, n)
-    return padded[high] - padded[low]
-
-
 def _smooth_relative(excess, reference, half_width=2):
     """Mean over the neighbouring lines ``k - half_width .. k + half_width`` (those that exist) of
     ``excess / |reference|^2``, times ``|reference|^2`` (lines on the first axis)."""
     scale = np.maximum(np.abs(reference) ** 2, 1e-300)
-    count = _window_sum(np.ones((excess.shape[0],) + (1,) * (excess.ndim - 1)), half_width)
-    return _window_sum(excess / scale, half_width) / count * scale
+    relative = excess / scale
+    n = relative.shape[0]
+    padded = np.concatenate([np.zeros((1,) + relative.shape[1:]), np.cumsum(relative, axis=0)])
+    low = np.clip(np.arange(n) - half_width, 0, n)
+    high = np.clip(np.arange(n) + half_width + 1, 0, n)
+    count = (high - low).reshape((-1,) + (1,) * (relative.ndim - 1))
+    return (padded[high] - padded[low]) / count * scale
 
 
-def _combine(estimates, noise_var, levels, zero_level=False):
-    """The BLA, its noise variance and the variance of its systematic (nonlinear) error.
+def _combine(estimates, noise_var, levels):
+    """The BLA at the top level, its noise variance and the variance of its systematic (nonlinear) error.
 
     Top level (``levels == 1``), ``n`` realizations: ``G = mean G_m``, noise
     ``sum sigma_m^2 / n^2``, stochastic distortion of one realization
     ``sigma_S^2 = n max(var_m(G_m) / n - noise, 0)`` (NaN for n = 1).
     With a lower level ``l`` the level dependence ``B = (G - G_l) / (1 - l^2)``
     (the BLA's deviation from the small-signal response, to first order in the
-    level squared) is measured; its power with the noise's removed, averaged
+    level squared) is measured; its power with the scatter of noise and
+    stochastic distortion (both levels) removed, averaged
     over 5 neighbouring lines relative to ``|G|`` (the line's own where it
     stands out of the noise: ``|B|^2 > 4 var B``), plus ``sigma_S^2 / n``, is
     the systematic variance.  Without a lower level the systematic variance is
     ``sigma_S^2``: the distortion's level stands for the BLA's deviation, which
     is of the same order (sec. 3.4).
 
-    With ``zero_level`` (config ``frf.multisine_zero_level``) the BLA is taken to zero
-    excitation level where the level change is coherent: ``B = b G`` with a
-    relative level coefficient ``b`` fitted (least squares weighted by ``var B``)
-    over 11 neighbouring lines, as the stepped sine's amplitude coefficient is
-    interpolated (`ambid.amplitude`: the coefficient, not the correction, is
-    smooth in frequency); ``var b`` from the noise of ``B`` or, where larger,
-    from its scatter about ``b G``.  A line takes ``G (1 - b)`` where ``b``
-    stands out (``|b|^2 > 4 var b``) and the correction's noise ``|G|^2 var b``
-    plus what ``b G`` does not follow of ``B`` (its power beyond the noise, as
-    above) is below the level change's power it replaces.  Line by line,
-    ``G - B`` would cost ``(lambda - 1)^2 noise + lambda^2 noise_l`` (``lambda =
-    1 / (1 - l^2)``: seven times the top level's noise for ``l = 0.5``); the
-    fitted coefficient costs about an eleventh of ``var B``.  Where the level
-    change is not coherent (the stochastic distortion's scatter between
-    realizations dominates it) nothing changes.  The stochastic distortion of
-    the top level stays in the systematic variance.
-
     Returns
     -------
     plant, noise, distortion, systematic : arrays
-        The BLA (at zero level where taken), its noise variance, ``sigma_S^2``
-        at the top level and the systematic variance of the value returned.
-    extrapolated : bool array
-        Where the zero-level value was taken (all false without ``zero_level``
-        or a lower level).
+        The BLA at the top level, its noise variance, ``sigma_S^2`` and the
+        systematic variance.
     """
     top = levels >= 1.0 - 1e-9
     n = int(top.sum())
@@ -220,7 +192,7 @@ def _combine(estimates, noise_var, levels, zero_level=False):
         distortion = np.full(plant.shape, np.nan)
     lower = levels[~top]
     if lower.size == 0:
-        return plant, noise, distortion, distortion, np.zeros(plant.shape, dtype=bool)
+        return plant, noise, distortion, distortion
     level = lower.min()
     low = levels == level
     low_plant, low_noise = estimates[low].mean(axis=0), noise_var[low].sum(axis=0) / low.sum() ** 2
@@ -230,42 +202,17 @@ def _combine(estimates, noise_var, levels, zero_level=False):
     stochastic = np.nan_to_num(distortion)
     stochastic_share = 1.0 / n + level**4 / low.sum()
     bias_var = (noise + low_noise + stochastic_share * stochastic) * lever**2
-    level_var = _level_variance(bias, bias_var, plant)
+    excess = np.abs(bias) ** 2 - bias_var
+    # smoothed where the noise dominates; the line's own value where the level effect stands out
+    # (a lightly damped resonance moving with the level: sharper than any smoothing window)
+    significant = np.abs(bias) ** 2 > 4 * bias_var  # 2 % of pure-noise lines
+    level_var = np.maximum(np.where(significant, np.maximum(excess, _smooth_relative(excess, plant)),
+                                    _smooth_relative(excess, plant)), 0.0)
     systematic = level_var + (stochastic / n if n > 1 else 0.0)
-    extrapolated = np.zeros(plant.shape, dtype=bool)
-    if zero_level:
-        # B = b G locally: the relative level coefficient b, least squares over 11 lines weighted by B's variance
-        weight = 1.0 / np.maximum(bias_var, 1e-300)
-        gram = _window_sum(weight * np.abs(plant) ** 2, _COEFFICIENT_HALF_WIDTH)
-        coefficient = _window_sum(weight * np.conj(plant) * bias, _COEFFICIENT_HALF_WIDTH) / np.maximum(gram, 1e-300)
-        residual = bias - coefficient * plant  # what b G does not follow
-        # the coefficient's variance from the noise of B, or from the scatter about b G where that is larger (a level
-        # change that is not one coefficient over the window)
-        count = _window_sum(np.ones(weight.shape), _COEFFICIENT_HALF_WIDTH)
-        scatter = _window_sum(weight * np.abs(residual) ** 2, _COEFFICIENT_HALF_WIDTH) / np.maximum(count - 1, 1)
-        coefficient_var = np.maximum(scatter, 1.0) / np.maximum(gram, 1e-300)
-        residual_var = _level_variance(residual, bias_var, plant)
-        correction_var = np.abs(plant) ** 2 * coefficient_var
-        coherent = np.abs(coefficient) ** 2 > 4 * coefficient_var  # 2 % of windows of pure noise
-        extrapolated = coherent & (correction_var + residual_var < level_var)
-        plant = np.where(extrapolated, plant * (1 - coefficient), plant)
-        # the correction's error is shared by the window's lines: systematic, not the line's own noise
-        systematic = np.where(extrapolated, correction_var + residual_var + (stochastic / n if n > 1 else 0.0),
-                              systematic)
-    return plant, noise, distortion, systematic, extrapolated
+    return plant, noise, distortion, systematic
 
 
-def _level_variance(change, change_var, plant):
-    """The power of a level change beyond its noise: averaged over 5 lines relative to ``|G|^2`` where the noise
-    dominates, the line's own where it stands out (``|B|^2 > 4 var B``, 2 % of pure-noise lines): a lightly damped
-    resonance moving with the level is sharper than any smoothing window."""
-    excess = np.abs(change) ** 2 - change_var
-    smooth = _smooth_relative(excess, plant)
-    significant = np.abs(change) ** 2 > 4 * change_var
-    return np.maximum(np.where(significant, np.maximum(excess, smooth), smooth), 0.0)
-
-
-def group_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
+def group_bla(spectra, reference, excites, frequency_hz, axes, noise_half_width=2):
     """The BLA of one input group at the lines that excite it.
 
     Parameters
@@ -279,11 +226,9 @@ def group_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
     frequency_hz : array (L,)
     axes : list of str
         The group's axes.
-    settings : ambid.floor.FloorSettings, optional
-        ``multisine_zero_level``: the BLA taken to zero excitation level where
-        its level change is coherent (`_combine`); ``noise_half_width``: lines
-        over which the noise is pooled (`_per_realization`).  Default:
-        `FloorSettings()`.
+    noise_half_width : int
+        Lines either side over which the noise is pooled (`_per_realization`;
+        config ``frf.noise_half_width``).
 
     Returns
     -------
@@ -307,13 +252,10 @@ def group_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
     v = part[:, :, :, [_V2[a] for a in axes]]
     current = 0.5 * (part[:, :, :, [_UPPER[a] for a in axes]] - part[:, :, :, [_LOWER[a] for a in axes]])
     levels = realization_levels(reference)
-    settings = settings or FloorSettings()
-    estimates, noise, condition = _per_realization(u, v, settings.noise_half_width)
-    plant, noise_var, distortion_var, systematic_var, extrapolated = _combine(estimates, noise, levels,
-                                                                              settings.multisine_zero_level)
-    estimates, noise, _ = _per_realization(u, current, settings.noise_half_width)
-    amplifier, current_noise_var, current_distortion_var, current_systematic_var, current_extrapolated = _combine(
-        estimates, noise, levels, settings.multisine_zero_level)
+    estimates, noise, condition = _per_realization(u, v, noise_half_width)
+    plant, noise_var, distortion_var, systematic_var = _combine(estimates, noise, levels)
+    estimates, noise, _ = _per_realization(u, current, noise_half_width)
+    amplifier, current_noise_var, current_distortion_var, current_systematic_var = _combine(estimates, noise, levels)
     condition = np.median(condition[levels >= 1.0 - 1e-9], axis=0)
     # measured dynamic compliance E_u -> V2: the positions against the reference excitation
     r = reference[:, :, index][..., lines]  # (R, E, n, L)
@@ -327,10 +269,10 @@ def group_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
                     systematic_std=np.sqrt(systematic_var), current=amplifier,
                     current_noise_std=np.sqrt(current_noise_var), current_distortion_std=np.sqrt(current_distortion_var),
                     current_systematic_std=np.sqrt(current_systematic_var), condition=condition, compliance=compliance,
-                    extrapolated=extrapolated, current_extrapolated=current_extrapolated, realizations=spectra.shape[0], levels=np.unique(levels))
+                    realizations=spectra.shape[0], levels=np.unique(levels))
 
 
-def siso_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
+def siso_bla(spectra, reference, excites, frequency_hz, axes, noise_half_width=2):
     """SISO BLA of a per-axis design: ``V2_j / U2_i`` in the experiment exciting axis i only (as the stepped sine).
 
     Returns
@@ -338,7 +280,6 @@ def siso_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
     dict
         ``(output, input) -> (frequency_hz, G, noise_std, distortion_std)``; empty when no experiment excites one axis alone.
     """
-    settings = settings or FloorSettings()
     out = {}
     active = np.abs(reference).sum(axis=(0, 3)) > 0  # (E, 5)
     for input_axis in axes:
@@ -351,14 +292,14 @@ def siso_bla(spectra, reference, excites, frequency_hz, axes, settings=None):
         u = part[:, :, :, [_U2[input_axis]]]
         levels = realization_levels(reference)
         for output in axes:
-            estimates, noise, _ = _per_realization(u, part[:, :, :, [_V2[output]]], settings.noise_half_width)
-            g, noise_var, _, systematic_var, _ = _combine(estimates, noise, levels, settings.multisine_zero_level)
+            estimates, noise, _ = _per_realization(u, part[:, :, :, [_V2[output]]], noise_half_width)
+            g, noise_var, _, systematic_var = _combine(estimates, noise, levels)
             out[(output, input_axis)] = (np.asarray(frequency_hz)[lines], g[:, 0, 0], np.sqrt(noise_var[:, 0, 0]),
                                          np.sqrt(systematic_var[:, 0, 0]))
     return out
 
 
-def pass_bla(spectra, reference, excites, frequency_hz, design, settings=None):
+def pass_bla(spectra, reference, excites, frequency_hz, design, noise_half_width=2):
     """Every estimate of one pass: radial MIMO group, axial group, SISO (per-axis designs).
 
     Returns
@@ -368,10 +309,10 @@ def pass_bla(spectra, reference, excites, frequency_hz, design, settings=None):
     """
     excited_axes = [a for a in ALL_AXES if excites[:, ALL_AXES.index(a)].any()]
     radial = [a for a in RADIAL_AXES if a in excited_axes]
-    out = {"radial": group_bla(spectra, reference, excites, frequency_hz, radial, settings) if radial else None,
-           "axial": (group_bla(spectra, reference, excites, frequency_hz, [AXIAL_AXIS], settings)
+    out = {"radial": group_bla(spectra, reference, excites, frequency_hz, radial, noise_half_width) if radial else None,
+           "axial": (group_bla(spectra, reference, excites, frequency_hz, [AXIAL_AXIS], noise_half_width)
                      if AXIAL_AXIS in excited_axes else None),
-           "siso": (siso_bla(spectra, reference, excites, frequency_hz, radial, settings)
+           "siso": (siso_bla(spectra, reference, excites, frequency_hz, radial, noise_half_width)
                     if design == "per_axis" else {})}
     return out
 
@@ -446,7 +387,7 @@ def multisine_passes(frame):
     return out
 
 
-def multisine_frf(passes, design="orthogonal", settings=None):
+def multisine_frf(passes, design="orthogonal", noise_half_width=2):
     """The FRF of a multisine run: the BLA of every pass, the zoom merged into the coarse pass.
 
     Parameters
@@ -455,13 +396,9 @@ def multisine_frf(passes, design="orthogonal", settings=None):
         `multisine_passes`; the first is the coarse pass, a later one named ``zoom`` refines it.
     design : str
         ``per_axis`` adds the SISO ratios.
-    settings : ambid.floor.FloorSettings, optional
-        Config ``frf`` (default `FloorSettings()`): with ``multisine_zero_level``
-        the BLA taken to zero excitation level where its level change is
-        coherent (`_combine`); the noise pooled over ``noise_half_width`` lines
-        either side (`_per_realization`).  The zoom's planning
-        (`ambid.multisine.identify_multisine`) uses the BLA at the level the zoom
-        will run.
+    noise_half_width : int
+        The noise pooled over this many lines either side (`_per_realization`;
+        config ``frf.noise_half_width``).
 
     Returns
     -------
@@ -470,8 +407,8 @@ def multisine_frf(passes, design="orthogonal", settings=None):
     estimates : dict
         ``radial``, ``axial`` (merged `GroupBLA`), ``siso``, and ``by_pass`` (name -> `pass_bla`).
     """
-    by_pass = {p["name"]: pass_bla(p["spectra"], p["reference"], p["excites"], p["frequency_hz"], design, settings)
-               for p in passes}
+    by_pass = {p["name"]: pass_bla(p["spectra"], p["reference"], p["excites"], p["frequency_hz"], design,
+                                   noise_half_width) for p in passes}
     radial = axial = None
     siso = {}
     for p in passes:
@@ -570,6 +507,34 @@ def distortion_levels(spectra, grid_role, frequency_hz, excites, axes=ALL_AXES, 
                 row[f"{key}_db"] = float(20 * np.log10(row[f"{key}_m"] / row["excited_m"]))
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def excitation_covariance(spectra, reference):
+    """Each axis' variance of the differential coil current ``(I_upper - I_lower) / 2`` and of the position ``V2``,
+    and their covariance, over the top level's realizations and experiments, summed over the stored lines.
+
+    What the force law is averaged over during the run (`ambid.effects.at_excitation_level`): the per-period spectra
+    are complex amplitudes, so a line contributes ``|c|^2 / 2`` (``Re(c conj(v)) / 2``).
+
+    Parameters
+    ----------
+    spectra : complex array (R, E, P, 20, L)
+    reference : complex array (R, E, 5, L)
+
+    Returns
+    -------
+    dict
+        Axis -> ``[var_i_a2, var_x_m2, cov_am]``, every axis of `ambid.machine.ALL_AXES`.
+    """
+    top = realization_levels(reference) >= 1.0 - 1e-9
+    part = spectra[top]
+    out = {}
+    for axis in ALL_AXES:
+        coil = 0.5 * (part[:, :, :, _UPPER[axis]] - part[:, :, :, _LOWER[axis]])
+        position = part[:, :, :, _V2[axis]]
+        moment = lambda a, b: float(np.mean(np.sum((a * np.conj(b)).real, axis=-1)) / 2)  # noqa: E731
+        out[axis] = [moment(coil, coil), moment(position, position), moment(coil, position)]
+    return out
 
 
 def line_levels(spectra, axis):

@@ -28,7 +28,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from .effects import COIL_CURRENT_EFFECTS, series_state_space
+from .effects import COIL_CURRENT_EFFECTS, at_excitation_level, series_state_space
 from .errors import AmbidError
 from .floor import band_labels, frequency_bands
 from .frf import channel
@@ -38,7 +38,7 @@ from .findings import Finding
 from .plant import Plant, zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes"]
+           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes", "at_run_level"]
 
 
 class CompareError(AmbidError):
@@ -216,6 +216,34 @@ def enough_modes(machine, measured, tolerance=0.1, most=80):
         modes = min(most, int(np.ceil(1.5 * modes)))
         error = truncation_error(machine, measured, modes, reference) if modes < most else (0.0, 0.0, 0.0, 0.0)
     return modes, own_error, error
+
+
+def at_run_level(machine, frf_metadata, stage):
+    """The machine as a run at a finite excitation level measures it, where the run's FRF states the level.
+
+    A multisine's BLA is the bearing linearized at the mean of the force law
+    over the run's currents and positions (`ambid.effects.at_excitation_level`);
+    its FRF stage records their covariance (``excitation_covariance``,
+    `ambid.bla.excitation_covariance`).  Runs without it (stepped sine: its FRF is
+    taken to zero amplitude instead, `ambid.amplitude`) keep the machine as it is.
+
+    Returns
+    -------
+    machine : ambid.machine.Machine
+    findings : list of Finding
+        A note with the stiffness factors applied.
+    """
+    excitation = (frf_metadata or {}).get("excitation_covariance")
+    if not excitation:
+        return machine, []
+    shifted = at_excitation_level(machine, excitation)
+    before, after = Plant(machine), Plant(shifted)
+    kx = after.position_stiffness / before.position_stiffness
+    ki = after.current_stiffness / before.current_stiffness
+    message = ("the model is linearized at the run's excitation level (thesis eq. 3.6 averaged over the logged coil "
+               "currents and positions): position stiffness x " + ", ".join(f"{a} {f:.4f}" for a, f in zip(RADIAL_AXES, kx))
+               + "; current stiffness x " + ", ".join(f"{a} {f:.4f}" for a, f in zip(RADIAL_AXES, ki)))
+    return shifted, [Finding(stage, "note", "excitation_level", "bearings", message, float(np.max(np.abs(kx - 1))))]
 
 
 def with_enough_modes(machine, measured, stage, tolerance=0.1):

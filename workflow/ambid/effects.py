@@ -26,11 +26,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .bearing import force_derivatives
 from .errors import ConfigError
-from .machine import ALL_AXES, AXIS_LOCATION, Foundation
+from .machine import ALL_AXES, AXIS_LOCATION, RADIAL_AXES, Foundation
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "COIL_CURRENT_EFFECTS", "register", "effect_from_config", "split_effects",
-           "series_state_space"]
+           "series_state_space", "at_excitation_level"]
 
 
 @dataclass(frozen=True)
@@ -437,6 +438,66 @@ class ActuatorCoefficients(Effect):
         axial = machine.axial_electromagnet
         return replace(machine, radial_bearings=tuple(bearings),
                        axial_electromagnet=None if axial is None else self._scaled(axial, "Z"))
+
+
+_GAUSS_HERMITE_NODES = 21  # per dimension: exact for the force law's derivatives to far beyond the logged spread
+
+
+def at_excitation_level(machine, excitation):
+    """The machine linearized as the force law averages over an excitation (thesis eq. 3.6, Bussgang).
+
+    The best linear approximation a multisine measures (`ambid.bla`) is, for the
+    bearing's static nonlinearity under Gaussian-like inputs, the mean of its
+    derivatives over the run's joint distribution of control current ``i_c`` and
+    position ``x``: ``ki_eff = E[dF/di_c]``, ``kx_eff = E[dF/dx]``.  With the
+    current alone, ``kx (1 + E[i_c^2] / i_b^2)`` and ``ki`` unchanged (``i_u^2 +
+    i_l^2 = 2 (i_b^2 + i_c^2)``); position excursions correlated with the current
+    (an axial bearing driven where its loop gain is high) cancel part of it.  The
+    means come from a 2-D Gauss-Hermite rule over the logged covariance of each
+    axis, at the magnetic center, and are applied as `ActuatorCoefficients`
+    (bias scale ``kx_eff ki / (kx ki_eff)``, force-constant scale ``ki_eff^2 kx /
+    (ki^2 kx_eff)``) to the machine's own electromagnets: the variant's effects
+    apply on top and stay its own.  On hs_eden_like's rig this predicts the
+    multisine BLA's deviation below 100 Hz (-0.4 to -0.5 %) to within its
+    standard error (`benchmarks/bench_multisine.py` part 6).
+
+    Parameters
+    ----------
+    machine : ambid.machine.Machine
+    excitation : dict
+        Axis -> ``(var_i_a2, var_x_m2, cov_am)``: the run's variance of the
+        differential coil current, of the position and their covariance
+        (`ambid.bla.excitation_covariance`); axes left out keep their
+        linearization.
+
+    Returns
+    -------
+    ambid.machine.Machine
+    """
+    electromagnets = dict(zip(RADIAL_AXES, machine.radial_electromagnets))
+    if machine.axial_electromagnet is not None:
+        electromagnets["Z"] = machine.axial_electromagnet
+    nodes, weights = np.polynomial.hermite_e.hermegauss(_GAUSS_HERMITE_NODES)
+    weights = np.outer(weights, weights).ravel() / weights.sum() ** 2
+    standard = np.stack([np.repeat(nodes, nodes.size), np.tile(nodes, nodes.size)])
+    bias_scale, force_scale = [1.0] * len(ALL_AXES), [1.0] * len(ALL_AXES)
+    for axis, values in excitation.items():
+        if axis not in electromagnets:
+            continue
+        var_i, var_x, cov = (float(v) for v in values)
+        covariance = np.array([[var_i, cov], [cov, var_x]])
+        if not np.all(np.isfinite(covariance)) or np.any(np.linalg.eigvalsh(covariance) < -1e-12 * max(var_i, var_x, 1e-300)):
+            raise ConfigError(f"excitation.{axis}", f"not a covariance (var_i, var_x, cov): {values}")
+        current, position = np.linalg.cholesky(covariance + 1e-300 * np.eye(2)) @ standard
+        magnet = electromagnets[axis]
+        _, ki, kx = force_derivatives(magnet, magnet.bias_current_a, magnet.bias_current_a, 0.0)
+        _, ki_all, kx_all = force_derivatives(magnet, magnet.bias_current_a + current, magnet.bias_current_a - current,
+                                              position)
+        ki_ratio, kx_ratio = float(weights @ ki_all) / ki, float(weights @ kx_all) / kx
+        k = ALL_AXES.index(axis)
+        bias_scale[k] = kx_ratio / ki_ratio
+        force_scale[k] = ki_ratio**2 / kx_ratio
+    return ActuatorCoefficients(bias_current_scale=tuple(bias_scale), force_constant_scale=tuple(force_scale)).apply(machine)
 
 
 @register

@@ -95,11 +95,6 @@ class FloorSettings:
         The logged noise of each step is pooled with this many steps either side
         (`pooled_noise`; 0: each step's own estimate); a multisine's per-line
         noise is pooled over as many lines (`pool_variance`).
-    multisine_zero_level : bool
-        A multisine run at two levels: its BLA taken to zero level where the
-        level change is one relative coefficient over neighbouring lines
-        (`ambid.bla`; default false: on demo20's rig it removes the low-frequency
-        level bias but widens the first resonance's damping error, README).
     """
 
     fallback_floor: tuple = (("positions", 0.02), ("axial", 0.02), ("currents", 0.001))
@@ -109,15 +104,13 @@ class FloorSettings:
     scatter_half_width: int = 10
     zero_amplitude: bool = True
     noise_half_width: int = 2
-    multisine_zero_level: bool = False
 
     def __post_init__(self):
         floors = dict(self.fallback_floor)
         if set(floors) != set(FAMILIES) or any(not (0 <= v < 1) for v in floors.values()):
             raise ConfigError("frf.fallback_floor", f"needs a relative floor in [0, 1) for each of {list(FAMILIES)}")
-        for key in ("zero_amplitude", "multisine_zero_level"):
-            if not isinstance(getattr(self, key), bool):
-                raise ConfigError(f"frf.{key}", "must be true or false")
+        if not isinstance(self.zero_amplitude, bool):
+            raise ConfigError("frf.zero_amplitude", "must be true or false")
         for key, value, least in (("min_band_points", self.min_band_points, 5), ("min_pairs", self.min_pairs, 2),
                                   ("smooth_half_width", self.smooth_half_width, 2),
                                   ("scatter_half_width", self.scatter_half_width, 2),

@@ -811,7 +811,6 @@ def identify_multisine(rig_model, plant, settings, seed=0, noise=True, fit_optio
         ``settle_s`` of the zoom, ``skipped`` (channels the fit could not do) and ``notes``.
     """
     from .bla import pass_bla, bla_frf_table
-    from .floor import FloorSettings
     from .zoom import band_lines, fitted_features, zoom_bands
 
     say = log.info if log is not None else (lambda *args: None)
@@ -826,9 +825,7 @@ def identify_multisine(rig_model, plant, settings, seed=0, noise=True, fit_optio
             "skipped": [], "notes": []}
     if not settings.zoom:
         return passes, plan
-    # the BLA at the level the zoom will run (no extrapolation to zero level): where its resonances are
-    estimates = pass_bla(spectra, coarse.reference, coarse.grid.excites, coarse.frequency_hz, settings.design,
-                         FloorSettings(multisine_zero_level=False))
+    estimates = pass_bla(spectra, coarse.reference, coarse.grid.excites, coarse.frequency_hz, settings.design)
     if estimates["radial"] is None:
         plan["notes"].append("no radial axis excited: no zoom")
         return passes, plan

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ambid.bla import distortion_levels, line_levels, multisine_frf, multisine_passes
+from ambid.bla import distortion_levels, excitation_covariance, line_levels, multisine_frf, multisine_passes
 from ambid.floor import FloorSettings
 from ambid.frf import channel
 from ambid.io import rule_log, write_parquet, write_tsv
@@ -19,16 +19,20 @@ frame, info = read_multisine_log(snakemake.input.log)
 passes = multisine_passes(frame)
 design = info["metadata"].get("design", "orthogonal")
 floor_settings = FloorSettings.from_config({k: v for k, v in snakemake.params.settings.items() if k not in FRF_SETTINGS})
-table, estimates = multisine_frf(passes, design, floor_settings)
+table, estimates = multisine_frf(passes, design, floor_settings.noise_half_width)
 for p in passes:
     result = estimates["by_pass"][p["name"]]
     group = result["radial"]
     if group is not None:
-        log.info("%s pass: %d radial lines %.4g-%.4g Hz, %d realization(s) at level(s) %s, U condition median %.2f; "
-                 "%.0f %% of the plant's and %.0f %% of the currents' values extrapolated to zero level",
+        log.info("%s pass: %d radial lines %.4g-%.4g Hz, %d realization(s) at level(s) %s, U condition median %.2f",
                  p["name"], group.frequency_hz.size, group.frequency_hz.min(), group.frequency_hz.max(),
-                 p["spectra"].shape[0], group.levels.tolist(), np.median(group.condition),
-                 100 * group.extrapolated.mean(), 100 * group.current_extrapolated.mean())
+                 p["spectra"].shape[0], group.levels.tolist(), np.median(group.condition))
+coarse = passes[0]
+# what the force law is averaged over in this run: the model compared with it is linearized there
+excitation = excitation_covariance(coarse["spectra"], coarse["reference"])
+log.info("coarse pass, top level, rms coil current / position / correlation: %s",
+         "; ".join(f"{a} {np.sqrt(i):.3f} A, {1e6 * np.sqrt(x):.2f} um, {c / np.sqrt(max(i * x, 1e-300)):+.2f}"
+                   for a, (i, x, c) in excitation.items()))
 write_parquet(table, snakemake.output.frf,
               units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
                      "std": "m/A (A/A: current)", "systematic_std": "m/A (A/A: current)", "condition": "-"},
@@ -37,9 +41,8 @@ write_parquet(table, snakemake.output.frf,
                                     "std": "noise of the BLA (scatter between periods)",
                                     "systematic_std": "nonlinear distortion of the BLA (scatter between realizations "
                                                       "and the change between excitation levels)",
-                                    "zero_level": floor_settings.multisine_zero_level,
+                                    "excitation_covariance": excitation,
                                     "noise_pooled_lines": 2 * floor_settings.noise_half_width + 1})
-coarse = passes[0]
 excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
 levels = distortion_levels(coarse["spectra"], coarse["role"], coarse["frequency_hz"], coarse["excites"], axes=excited_axes)
 write_tsv(levels, snakemake.output.distortion)

@@ -1,6 +1,7 @@
 """Rule `compare`: one model variant against one identification run -> errors per channel, frequency and band, figures."""
 
-from ambid.compare import channel_errors, measured_channels, model_response, summarize, with_enough_modes
+from ambid.compare import (at_run_level, channel_errors, measured_channels, model_response, summarize,
+                           with_enough_modes)
 from ambid.findings import write_findings
 from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
@@ -12,10 +13,13 @@ log = rule_log(snakemake.log[0], "compare")
 machine_name, run, variant = snakemake.wildcards.machine, snakemake.wildcards.run, snakemake.wildcards.variant
 settings = snakemake.params.settings
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_name, source=snakemake.input.machine)
-table, _ = read_parquet(snakemake.input.frf, kind="frf")
+table, info = read_parquet(snakemake.input.frf, kind="frf")
 measured = measured_channels(table)
+machine, level = at_run_level(machine, info["metadata"], "compare")
 machine, findings = with_enough_modes(machine, measured, "compare")
-write_findings(findings, snakemake.output.findings)
+write_findings(level + findings, snakemake.output.findings)
+for finding in level:
+    log.info(finding.message)
 model = model_response(Plant(machine), measured)
 errors = channel_errors(measured, model)
 bands = settings.get("bands_hz")
