@@ -526,13 +526,15 @@ def excitation_covariance(spectra, reference):
     dict
         Axis -> ``[var_i_a2, var_x_m2, cov_am]``, every axis of `ambid.machine.ALL_AXES`.
     """
-    top = realization_levels(reference) >= 1.0 - 1e-9
-    part = spectra[top]
+    part = spectra[realization_levels(reference) >= 1.0 - 1e-9]
+
+    def moment(a, b):  # summed over the lines, averaged over realizations, experiments and periods
+        return float(np.mean(np.sum((a * np.conj(b)).real, axis=-1)) / 2)
+
     out = {}
     for axis in ALL_AXES:
         coil = 0.5 * (part[:, :, :, _UPPER[axis]] - part[:, :, :, _LOWER[axis]])
         position = part[:, :, :, _V2[axis]]
-        moment = lambda a, b: float(np.mean(np.sum((a * np.conj(b)).real, axis=-1)) / 2)  # noqa: E731
         out[axis] = [moment(coil, coil), moment(position, position), moment(coil, position)]
     return out
 

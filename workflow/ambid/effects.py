@@ -490,7 +490,7 @@ def at_excitation_level(machine, excitation):
             raise ConfigError(f"excitation.{axis}", f"not a covariance (var_i, var_x, cov): {values}")
         current, position = np.linalg.cholesky(covariance + 1e-300 * np.eye(2)) @ standard
         magnet = electromagnets[axis]
-        _, ki, kx = force_derivatives(magnet, magnet.bias_current_a, magnet.bias_current_a, 0.0)
+        ki, kx = magnet.linearize()  # at the magnetic center
         _, ki_all, kx_all = force_derivatives(magnet, magnet.bias_current_a + current, magnet.bias_current_a - current,
                                               position)
         ki_ratio, kx_ratio = float(weights @ ki_all) / ki, float(weights @ kx_all) / kx
