@@ -17,7 +17,10 @@
    - outside the library: nothing chosen or refitted at a search bound, and the
      misfit that remains called unexplained (the controller notch, invisible to
      the open-loop plant, must give "nothing");
-   - negative controls: nothing missing.
+   - negative controls: nothing missing;
+   - leads (not scored as top-1): where a hidden effect's misfit is within the floor and nothing is chosen,
+     whether the diagnosis' lead (`ambid.diagnose.Diagnosis.lead`) is that effect, and which negative controls
+     carry a lead.
    Column ``truth``: the BIC evidence the hidden effects at their true parameters earn in the log (the scorer
    knows them): below ``INDISTINGUISHABLE_BIC`` the draw is not visible in the data; top-1 is also given among the
    visible draws, beside the overall figure the target is set on.
@@ -142,11 +145,14 @@ def score(result):
     chosen = [f.candidate.effect for f in diagnosis.sequence]
     joint = diagnosis.joint.table if diagnosis.joint is not None else None
     at_floor = not diagnosis.cells_after["above_floor"].any()
-    out = {"chosen": ", ".join(chosen) or "-", "verdict": diagnosis.verdict, "at_floor": at_floor}
+    lead = diagnosis.lead
+    out = {"chosen": ", ".join(chosen) or (f"(lead: {lead.candidate.label})" if lead is not None else "-"),
+           "verdict": diagnosis.verdict, "at_floor": at_floor, "lead": lead.candidate.effect if lead is not None else None}
     if kind in ("single", "pair"):
         hidden = {effect_label(effect_from_config({"name": n, "parameters": result["draws"][n]}, n)) for n in names}
         named = {f.candidate.label for f in diagnosis.sequence} | {label for f in diagnosis.sequence for label in f.indistinguishable}
         out["top1"] = len(chosen) == len(names) and hidden <= named
+        out["lead_is_truth"] = not chosen and lead is not None and lead.candidate.effect in names
         errors, covered = [], True
         for name in names:
             rows = joint[(joint["origin"] == "new") & joint["parameter"].str.startswith(name + "[")
@@ -205,6 +211,9 @@ def suite(seeds, radial_points, workers):
     print(f"  of them visible in their log (the truth earns BIC evidence > {INDISTINGUISHABLE_BIC:g}, column 'truth'): "
           f"{len(visible)}; top-1 among those: {sum(s['top1'] for s in visible)} "
           f"({100 * np.mean([s['top1'] for s in visible]) if visible else np.nan:.0f} %)")
+    unnamed = [s for s in library if not s["top1"] and s["verdict"] in ("nothing", "retune")]
+    print(f"  misses at the floor (nothing chosen) whose lead is the hidden effect (not counted above): "
+          f"{sum(s['lead_is_truth'] for s in unnamed)} of {len(unnamed)}")
     print(f"parameters within 5 % where determined, else covered by 2 std: {sum(s['parameters_ok'] for s in library)} "
           f"of {len(library)}")
     print(f"final misfit at the floor (no cell above it after the joint refit): {sum(s['at_floor'] for s in library)} "
@@ -214,7 +223,8 @@ def suite(seeds, radial_points, workers):
           f"honest verdict (unexplained, or nothing for the invisible controller notch) in "
           f"{sum(s['honest'] for s in outside)} of {len(outside)}")
     negatives = by_kind("none")
-    print(f"negative controls with nothing missing: {sum(s['clean'] for s in negatives)} of {len(negatives)}")
+    print(f"negative controls with nothing missing: {sum(s['clean'] for s in negatives)} of {len(negatives)} "
+          f"(with a lead: {', '.join(s['lead'] for s in negatives if s['lead']) or 'none'})")
     times = [r["diagnose_s"] for r, _ in results]
     print(f"diagnosis wall time per rig: median {np.median(times):.1f} s, max {np.max(times):.1f} s\n")
 

@@ -19,7 +19,7 @@ import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
 from ambid.diagnose import (Candidate, DiagnoseError, FreeParameter, candidate_space, diagnose, effect_label, joint_refit,
-                            misfit, misfit_cells, plant_with_effects)
+                            misfit, misfit_cells, misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -206,6 +206,37 @@ def test_cells_and_report(demo):
     table, text = diagnosis_report(diagnosis, Plant(demo), measured, None, "demo20 test")
     assert "**Missing: `delay`" in text and "## Joint refit" in text and "```yaml" in text
     assert "helps_channels" in table.columns
+
+
+def test_a_weak_narrow_housing_mode_between_scan_points_is_a_lead_where_the_misfit_peaks():
+    """A 12 t frame's mode (zeta 0.01, 15 Hz wide) on demo20's 80-point grid (12.5 Hz steps), halfway between two of
+    the frequency scan's points (steps of 20 %): found from where the nominal model's misfit peaks, with its frequency
+    to 1 %; the misfit it leaves is within the floor, so it is the diagnosis' lead, not a missing effect."""
+    config = load_machine_config("demo20")
+    config["frequency_grid"]["radial"]["points"] = 80
+    machine = machine_from_config(config)
+    scan = FreeParameter("frequency_hz", 20.0, 5000.0, scan=32).grid()
+    frequency_hz = float(np.exp(0.5 * (scan[20] + scan[21])))
+    measured = synthetic_measurement(machine, [effect("foundation_mode", frequency_hz=frequency_hz, damping_ratio=0.01,
+                                                      mass_kg=12000.0)], seed=5)
+    _, residual = misfit(measured, model_response(Plant(machine), measured))
+    assert np.min(np.abs(misfit_peaks(measured, residual) / frequency_hz - 1)) < 0.02
+    diagnosis = diagnose(machine, measured)
+    assert diagnosis.verdict == "nothing" and not diagnosis.cells_before["above_floor"].any()
+    lead = diagnosis.lead
+    assert lead is not None and lead.candidate.label == "foundation_mode" and lead.evidence > 20
+    fitted = dict(zip([p.name for p in lead.candidate.free], lead.values))
+    assert fitted["frequency_hz"] == pytest.approx(frequency_hz, rel=0.01)
+    assert fitted["mass_kg"] == pytest.approx(12000.0, rel=0.25) and not lead.at_bound
+    assert diagnosis.summary()["lead"] == "foundation_mode"
+    assert "lead" in {f.code for f in diagnosis_findings(diagnosis)}
+    _, text = diagnosis_report(diagnosis, Plant(machine), measured, None, "demo20 lead")
+    assert "**Nothing is missing at the floor**" in text and "A lead, not a finding: the data favour `foundation_mode`" in text
+
+
+def test_no_lead_on_noise_alone(demo):
+    diagnosis = diagnose(demo, synthetic_measurement(demo, seed=1))
+    assert diagnosis.verdict == "nothing" and diagnosis.lead is None and diagnosis.summary()["lead"] == ""
 
 
 def test_bad_input():

@@ -126,11 +126,21 @@ def model_response(plant, channels):
     return out
 
 
+_SAMPLED_CHAINS = {}  # the coil-current response by (chain, sample time, grid): shared by every plant (a diagnosis
+#                       rebuilds the plant at each evaluation; the amplifier chain rarely changes with it)
+
+
 def _sampled_coil_current(plant, axis, frequency_hz):
     chain = [e for e in plant.input_effects if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)]
     frequency_hz = np.asarray(frequency_hz, dtype=float)
-    return plant.cached(("coil", repr(chain), frequency_hz.tobytes()),
-                        lambda: _sampled_chain(chain, plant.machine.sample_time_s, frequency_hz))
+    key = (repr(chain), plant.machine.sample_time_s, frequency_hz.tobytes())
+    if key not in _SAMPLED_CHAINS:
+        if len(_SAMPLED_CHAINS) >= 1024:
+            _SAMPLED_CHAINS.clear()
+        response = _sampled_chain(chain, plant.machine.sample_time_s, frequency_hz)
+        response.flags.writeable = False
+        _SAMPLED_CHAINS[key] = response
+    return _SAMPLED_CHAINS[key]
 
 
 def _sampled_chain(chain, sample_time_s, frequency_hz):

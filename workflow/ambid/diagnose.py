@@ -20,7 +20,9 @@ complex log ratio ``log(G / G_meas)`` (its minimum has a basin as wide as the
 parameter range: a lightly damped resonance that misses the measured one by more
 than its bandwidth still tells which way to go, where ``chi2`` is flat), local
 least squares on that objective from the best few scan minima, then bounded
-least squares on ``chi2`` from each; the best ``chi2`` wins.
+least squares on ``chi2`` from each; the best ``chi2`` wins.  A resonance
+narrower than the scan's steps (a heavy housing's mode, a few Hz wide) is also
+scanned at the frequencies where the model's misfit peaks (`misfit_peaks`).
 
 **Significance.**  Candidates are ranked by the Bayesian information criterion
 of the complex Gaussian likelihood, ``BIC = 2 chi2 / c + k ln(2N)`` (``k``
@@ -123,6 +125,7 @@ class FreeParameter:
     start: float | None = None  # None: the middle of the range (geometric for log parameters)
     scan: int = 24  # scan points (1: the start only)
     index: int | None = None
+    at_misfit_peaks: bool = False  # a resonance frequency: also scanned where the model's misfit peaks (`misfit_peaks`)
 
     def to_search(self, value):
         return np.log(value) if self.log else value
@@ -136,11 +139,15 @@ class FreeParameter:
             return self.start
         return float(np.sqrt(self.lower * self.upper)) if self.log else 0.5 * (self.lower + self.upper)
 
-    def grid(self):
-        """The scan's values in search coordinates."""
+    def grid(self, peaks_hz=()):
+        """The scan's values in search coordinates; with `at_misfit_peaks`, ``peaks_hz`` inside the range added."""
         if self.scan <= 1:
             return np.array([self.to_search(self.start_value)])
-        return np.linspace(self.to_search(self.lower), self.to_search(self.upper), self.scan)
+        grid = np.linspace(self.to_search(self.lower), self.to_search(self.upper), self.scan)
+        if self.at_misfit_peaks:
+            peaks = [f for f in peaks_hz if self.lower < f < self.upper]
+            grid = np.unique(np.concatenate([grid, [self.to_search(f) for f in peaks]]))
+        return grid
 
 
 @dataclass(frozen=True)
@@ -172,7 +179,7 @@ def candidate_space(machine):
     50 Hz - 1 MHz, delays 0.1 us - 1 ms, couplings +-20 %, stiffness factors
     0.05 - 5, added damping ratios 1e-4 - 0.1, speeds 100 - 200 000 rpm,
     sensor shifts up to 60 mm (kept on the rotor) and housing modes 20 Hz -
-    5 kHz of 0.05 - 50 rotor masses, the bearings' force constant and delivered
+    5 kHz of 0.05 - 10 000 rotor masses (also scanned where the misfit peaks), the bearings' force constant and delivered
     bias current within 0.7 - 1.4 of the drawing's, per axis.
     """
     rotor = machine.rotor
@@ -204,9 +211,9 @@ def candidate_space(machine):
         FreeParameter(name, 0.7, 1.4, start=1.0, scan=1, index=k) for name in ("force_constant_scale", "bias_current_scale")
         for k in range(len(ALL_AXES)))))
     candidates.append(Candidate("foundation_mode", "foundation_mode",
-                                (FreeParameter("frequency_hz", 20.0, 5000.0, scan=32),
-                                 # up to a base a thousand times the rotor's: a heavy base's mode is weak, not absent
-                                 FreeParameter("mass_kg", 0.05 * mass, 1000 * mass, start=mass, scan=5),
+                                (FreeParameter("frequency_hz", 20.0, 5000.0, scan=32, at_misfit_peaks=True),
+                                 # up to a base ten thousand times the rotor's: a heavy frame's mode is weak, not absent
+                                 FreeParameter("mass_kg", 0.05 * mass, 1e4 * mass, start=mass, scan=6),
                                  FreeParameter("damping_ratio", 1e-3, 0.3, start=0.02, scan=1))))
     return candidates
 
@@ -271,6 +278,24 @@ def misfit_cells(measured, predicted, limit=1.5):
     """``chi2`` per point of every channel family and band, and whether it is above the floor (`diagnose`)."""
     _, residual = misfit(measured, predicted)
     return _Cells(measured).frame(residual, limit)
+
+
+def misfit_peaks(measured, residual, count=4):
+    """Frequencies [Hz] where the misfit peaks: the ``count`` largest local maxima of ``|r|^2`` pooled over channels.
+
+    ``residual`` is `misfit`'s.  The points of all channels at one frequency are pooled (mean ``|r|^2``; 1 at the
+    floor); a maximum counts where it is above 1.  Returned with the midpoints to its neighbours on the measured
+    grid, between which an unmodelled resonance that peaks there lies.
+    """
+    frequency = np.concatenate([f for f, _, _ in measured.values()])
+    grid, index = np.unique(frequency, return_inverse=True)
+    if grid.size < 3:
+        return np.array([])
+    energy = np.bincount(index, np.abs(residual) ** 2) / np.bincount(index)
+    inner = np.arange(1, grid.size - 1)
+    maxima = inner[(energy[inner] >= energy[inner - 1]) & (energy[inner] >= energy[inner + 1]) & (energy[inner] > 1)]
+    top = maxima[np.argsort(-energy[maxima])][:count]
+    return np.unique(np.concatenate([grid[top], 0.5 * (grid[top] + grid[top - 1]), 0.5 * (grid[top] + grid[top + 1])]))
 
 
 # ------------------------------------------------------------------------------------------ evaluation
@@ -407,7 +432,8 @@ def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_eva
 
     inside = lambda x: np.clip(x, lower + 1e-9 * span, upper - 1e-9 * span)  # noqa: E731
     if warm is None:
-        grids = [p.grid() for p in free]
+        peaks = misfit_peaks(evaluator.measured, evaluator.residual(base)) if any(p.at_misfit_peaks for p in free) else ()
+        grids = [p.grid(peaks) for p in free]
         shape = tuple(g.size for g in grids)
         scan = np.array([float(np.sum(robust(np.array(x)) ** 2)) for x in itertools.product(*grids)])
         order = [flat for flat in _local_minima(scan, shape)[:starts] if scan[flat] <= 2 * np.min(scan)]
@@ -745,7 +771,8 @@ class Diagnosis:
     and band of the model as it is and after the joint refit; ``verdict``: ``missing``
     (effects to add), ``retune`` (nothing to add, but the variant's own parameters move
     and that brings the misfit to the floor), ``unexplained`` (misfit above the floor that
-    no library effect explains) or ``nothing`` (at the floor).
+    no library effect explains) or ``nothing`` (at the floor; `lead` names what the data
+    favour all the same).
     """
 
     chi2: float  # of the model as it is
@@ -759,6 +786,8 @@ class Diagnosis:
     cells_after: pd.DataFrame = None
     verdict: str = "nothing"
     retune: pd.DataFrame = None  # variant parameters the joint refit moves beyond their uncertainty
+    base_at_floor: bool = False  # no cell of the model the candidates were fitted on is above the floor
+    determined_std: float = DiagnoseSettings.determined_std
 
     @property
     def excess(self):
@@ -777,6 +806,15 @@ class Diagnosis:
         return self.ranked[0] if self.ranked and self.ranked[0].missing else None
 
     @property
+    def lead(self):
+        """Where nothing is chosen: the best candidate the data favour (significant evidence, inside its range) that is
+        not missing because the misfit is within the floor, or None.  A lead to check with more data, not an effect to add.
+        """
+        if self.sequence or self.verdict == "unexplained" or not self.base_at_floor:
+            return None
+        return next((f for f in self.ranked if f.significant and not f.at_bound), None)
+
+    @property
     def unexplained(self):
         """Cells still above the floor after the joint refit (empty when the verdict is not ``unexplained``)."""
         if self.cells_after is None:
@@ -784,10 +822,12 @@ class Diagnosis:
         return self.cells_after[self.cells_after["above_floor"]]
 
     def summary(self):
-        """The verdict in one row: ``verdict``, ``effects`` (chosen), ``retune`` (variant parameters moved),
+        """The verdict in one row: ``verdict``, ``effects`` (chosen), ``lead`` (`lead`), ``retune`` (variant parameters moved),
         ``unexplained`` (cells above the floor after the joint refit), ``chi2_per_point`` before and after."""
         after = self.joint.chi2 if self.joint is not None else self.chi2
+        lead = self.lead
         return {"verdict": self.verdict, "effects": ", ".join(f.candidate.label for f in self.sequence),
+                "lead": lead.candidate.label if lead is not None else "",
                 "retune": ", ".join(self.retune["parameter"]) if self.retune is not None else "",
                 "unexplained": ", ".join(f"{r.family} {r.band}" for r in self.unexplained.itertuples()),
                 "chi2_per_point_before": self.chi2 / self.points, "chi2_per_point_after": after / self.points}
@@ -846,7 +886,9 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     fitted = [_fit(evaluator, c, (), settings.max_evaluations) for c in candidates]
     overdispersion = _rank(fitted, float(np.vdot(current, current).real), current, evaluator, settings)
     diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
-                          base_chi2=float(np.vdot(current, current).real), cells_before=cells_before)
+                          base_chi2=float(np.vdot(current, current).real), cells_before=cells_before,
+                          base_at_floor=not cells.above(cells.chi2(current), settings.floor_limit).any(),
+                          determined_std=settings.determined_std)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
     # before, and the next candidates fitted on top of that joint model
     # (candidates that could not pay for their parameters on the model as it is, from an optimum inside their range, are

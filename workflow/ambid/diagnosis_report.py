@@ -143,6 +143,12 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
                                f"{fitted.candidate.label} would explain part of the misfit only with "
                                f"{', '.join(fitted.at_bound)} at the bound of its physical range: not an explanation",
                                fitted.evidence))
+    lead = diagnosis.lead
+    if lead is not None:
+        out.append(Finding(stage, "note", "lead", lead.candidate.label,
+                           f"the data favour {lead.candidate.label} (BIC evidence {lead.evidence:.3g}), but the misfit it "
+                           "would remove lies within the floor: a lead to check with more data, not an effect to add",
+                           lead.evidence))
     unexplained = diagnosis.unexplained
     if not unexplained.empty:
         out.append(Finding(stage, "warning", "unexplained_misfit", ", ".join(sorted(set(unexplained["family"]))),
@@ -185,6 +191,16 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
         worst = float(limit["chi2_per_point"].max())
         lines += [f"**Nothing is missing at the floor**: every channel family and band is within the floor (largest chi2 "
                   f"per point {worst:.3g}); no candidate effect is needed.", ""]
+    lead = diagnosis.lead
+    if lead is not None:
+        values = ", ".join(f"{p.name} = {format_value(v, s)}"
+                           + (" (not determined)" if not abs(s) < diagnosis.determined_std * abs(v) else "")
+                           for p, v, s in zip(lead.candidate.free, lead.values, lead.std))
+        where = helps[diagnosis.ranked.index(lead)]
+        lines += [f"A lead, not a finding: the data favour `{lead.candidate.label}` ({values}; BIC evidence "
+                  f"{lead.evidence:.4g}, most on {where['channels']}, {where['band']} band), but the misfit it would remove "
+                  f"lies within the floor{' of the model retuned below' if diagnosis.verdict == 'retune' else ''}. Whether "
+                  "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts.", ""]
     if diagnosis.sequence:
         new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
         parts = []

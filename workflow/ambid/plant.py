@@ -61,8 +61,12 @@ class SecondOrderModel:
         frequency_hz = np.asarray(frequency_hz, dtype=float)
         a, b, c = self.state_space()
         poles, vectors = scipy.linalg.eig(a)
-        if np.linalg.cond(vectors) < 1e8:
-            left, right = c @ vectors, np.linalg.solve(vectors, b.astype(complex))
+        # the eigenvectors' condition from their LU factors (LAPACK gecon's 1-norm estimate), which also solve for V^-1 B
+        factors = scipy.linalg.lu_factor(vectors)
+        gecon = scipy.linalg.get_lapack_funcs("gecon", (factors[0],))
+        reciprocal_condition, _ = gecon(factors[0], np.linalg.norm(vectors, 1), norm="1")
+        if reciprocal_condition > 1e-8:
+            left, right = c @ vectors, scipy.linalg.lu_solve(factors, b.astype(complex))
             resolvent = 1.0 / (2j * np.pi * frequency_hz[:, None] - poles[None, :])
             return np.einsum("ok,fk,ki->foi", left, resolvent, right, optimize=True)
         w = 2 * np.pi * frequency_hz[:, None, None]

@@ -293,6 +293,11 @@ class PlanarModes:
         return self.angular_frequency_rad_s / (2 * np.pi)
 
 
+#: Modes by (rotor, n_modes, loads), shared by equal rotors: a diagnosis builds the same updated rotor again for every
+#: evaluation that moves only a bearing, damping or signal parameter (bounded; a rotor is immutable and hashable).
+_MODES_OF_EQUAL_ROTORS = {}
+
+
 @dataclass(frozen=True)
 class Rotor:
     """A flexible rotor: shaft elements in a chain, disks and sleeves.
@@ -344,8 +349,12 @@ class Rotor:
 
     @property
     def node_positions_m(self):
-        """Axial position z of each node [m], node 0 at z = 0."""
-        return np.concatenate([[0.0], np.cumsum([e.length_m for e in self.elements])])
+        """Axial position z of each node [m], node 0 at z = 0 (cached: do not modify)."""
+        if "nodes" not in self._cache:
+            nodes = np.concatenate([[0.0], np.cumsum([e.length_m for e in self.elements])])
+            nodes.flags.writeable = False
+            self._cache["nodes"] = nodes
+        return self._cache["nodes"]
 
     @property
     def length_m(self):
@@ -539,6 +548,9 @@ class Rotor:
         key = ("modes", n_modes, tuple(static_loads_m))
         if key in self._cache:  # a rotor is immutable: variants that change only damping or sensors reuse its modes
             return self._cache[key]
+        if (self, *key) in _MODES_OF_EQUAL_ROTORS:  # a copy with the same elements (an update applied again)
+            self._cache[key] = _MODES_OF_EQUAL_ROTORS[(self, *key)]
+            return self._cache[key]
         planar = self.planar_matrices()
         n = planar["mass"].shape[0]
         truncated = n_modes is not None and n_modes < n
@@ -556,6 +568,9 @@ class Rotor:
         elif truncated:
             omega, shapes = omega[:n_modes], shapes[:, :n_modes]
         self._cache[key] = PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
+        if len(_MODES_OF_EQUAL_ROTORS) >= 64:
+            _MODES_OF_EQUAL_ROTORS.clear()
+        _MODES_OF_EQUAL_ROTORS[(self, *key)] = self._cache[key]
         return self._cache[key]
 
     def modal_loss_factors(self, modes):
@@ -599,13 +614,18 @@ class Rotor:
         Uses the element's own Timoshenko interpolation (eq. 2.8), so sensors
         and actuators may sit inside elements.  The same row serves the x plane
         (``x = row @ q_x``) and the y plane (``y = row @ q_y``); by reciprocity its
-        transpose is the generalized force of a unit point force at ``z_m``.
+        transpose is the generalized force of a unit point force at ``z_m``.  Cached per position (a model
+        build asks for each sensor and actuator row several times): do not modify the row.
         """
-        e, xi = self.locate(z_m)
-        props = self.element_properties()
-        row = np.zeros(2 * self.n_nodes)
-        row[2 * e : 2 * e + 4] = timoshenko_shape_functions(xi, props["length_m"][e], props["shear_parameter"][e])
-        return row
+        key = ("row", float(z_m))
+        if key not in self._cache:
+            e, xi = self.locate(z_m)
+            props = self.element_properties()
+            row = np.zeros(2 * self.n_nodes)
+            row[2 * e : 2 * e + 4] = timoshenko_shape_functions(xi, props["length_m"][e], props["shear_parameter"][e])
+            row.flags.writeable = False
+            self._cache[key] = row
+        return self._cache[key]
 
 
 def _rigid_threshold(omega2):

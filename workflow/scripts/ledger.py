@@ -19,6 +19,8 @@ for path, verdict_path, run, variant in zip(snakemake.input.summaries, snakemake
             "unexplained": f"unexplained misfit: {verdict['unexplained']}", "nothing": "nothing missing"}[verdict["verdict"]]
     if verdict["verdict"] == "missing" and verdict["unexplained"]:
         text += f"; unexplained misfit remains: {verdict['unexplained']}"
+    if verdict.get("lead"):
+        text += f" (lead within the floor: {verdict['lead']})"
     parts.append(summary.assign(machine=machine, run=run, variant=variant, diagnosis=text))
 table = pd.concat(parts, ignore_index=True)[["machine", "run", "variant", "output", "input", "points", "chi2", "excess",
                                              "rms_magnitude_db", "rms_phase_deg", "diagnosis"]]
