@@ -193,8 +193,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
                   f"per point {worst:.3g}); no candidate effect is needed.", ""]
     lead = diagnosis.lead
     if lead is not None:
+        band = [min(float(np.min(f)) for f, _, _ in measured.values()), max(float(np.max(f)) for f, _, _ in measured.values())]
         values = ", ".join(f"{p.name} = {format_value(v, s)}"
                            + (" (not determined)" if not abs(s) < diagnosis.determined_std * abs(v) else "")
+                           + (f" (outside the measured {band[0]:.4g}-{band[1]:.4g} Hz)"
+                              if p.at_misfit_peaks and not band[0] <= v <= band[1] else "")  # a resonance
                            for p, v, s in zip(lead.candidate.free, lead.values, lead.std))
         where = helps[diagnosis.ranked.index(lead)]
         lines += [f"A lead, not a finding: the data favour `{lead.candidate.label}` ({values}; BIC evidence "
