@@ -12,10 +12,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
-from ambid.diagnosis_report import run_disagreements, share_text  # noqa: E402
+from ambid.diagnosis_report import lead_support, run_disagreements, share_text  # noqa: E402
 from ambid.plots import excess_maps, phase_deg, phase_near, save_figure  # noqa: E402
-from ambid.report import (Figure, Section, Table, Text, _run_disagreements, engineering_units, render_report,  # noqa: E402
-                          update_caveat, verdict_markdown)
+from ambid.report import (Figure, Section, Table, Text, _lead_support, _run_disagreements, engineering_units,  # noqa: E402
+                          render_report, update_caveat, verdict_markdown)
 
 
 class Page(HTMLParser):
@@ -178,3 +178,24 @@ def test_runs_that_disagree_beyond_their_uncertainty_are_named(tmp_path):
     (warning,) = _run_disagreements(tmp_path, ["ident01", "ms01", "empty"], "last")
     assert warning["where"] == "diagnoses of last on ident01 and ms01" and warning["severity"] == "warning"
     assert "`bias[0]` 1.0095 +- 0.00013 against 1.0183 +- 0.0014 (6.0 sigma)" in warning["message"]
+
+
+def test_a_lead_is_checked_against_the_other_runs(tmp_path):
+    """ident01's lead (within its floor) against ms01's and ms02's fits of the same candidate on the same variant: one
+    gives it no support, one supports it; a run without the candidate says so; a run without a lead says nothing."""
+    ranking = lambda rows: pd.DataFrame(rows, columns=["candidate", "evidence_bic", "significant"])  # noqa: E731
+    rankings = {"ms01": ranking([("foundation_mode", -20.48, False), ("delay", 3.0, False)]),
+                "ms02": ranking([("foundation_mode", 140.0, True)]), "old": ranking([("delay", 1.0, False)])}
+    sentence = lead_support("foundation_mode", rankings)
+    assert "run `ms01` does not support it (its best fit earns BIC evidence -20.5)" in sentence
+    assert "run `ms02` supports it (its best fit earns BIC evidence 140)" in sentence
+    assert "run `old` did not try it" in sentence and lead_support("foundation_mode", {}) == ""
+    for run, lead in (("ident01", "foundation_mode"), ("ms01", "")):
+        (tmp_path / f"diagnose/{run}/last").mkdir(parents=True)
+        pd.DataFrame([{"verdict": "nothing", "effects": "", "lead": lead}]).to_csv(
+            tmp_path / f"diagnose/{run}/last/verdict.tsv", sep="\t", index=False)
+        rankings["ms01" if run == "ms01" else "ms02"].to_csv(tmp_path / f"diagnose/{run}/last/candidates.tsv", sep="\t",
+                                                            index=False)
+    text = _lead_support(tmp_path, "ident01", ["ident01", "ms01"], "last")
+    assert text.startswith("\n\nThe lead `foundation_mode` on the other runs of this variant: run `ms01` does not support it")
+    assert _lead_support(tmp_path, "ms01", ["ident01", "ms01"], "last") == ""

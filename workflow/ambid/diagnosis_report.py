@@ -70,6 +70,37 @@ def share_text(share):
     return f"{100 * share:.1f} %"
 
 
+def lead_support(lead, rankings):
+    """What the other runs' diagnoses of the same model variant say about one run's lead.
+
+    A lead (`ambid.diagnose.Diagnosis.lead`) is within the floor of the run that names it; another run of the same
+    machine fitted the same candidate on its own data (``candidates.tsv``): significant BIC evidence there supports
+    the lead, none does not.
+
+    Parameters
+    ----------
+    lead : str
+        The lead's candidate label.
+    rankings : dict
+        ``other run -> its candidates table`` (columns ``candidate, evidence_bic, significant``).
+
+    Returns
+    -------
+    str
+        One sentence ("" without other runs).
+    """
+    parts = []
+    for run, table in rankings.items():
+        rows = table[table["candidate"] == lead]
+        if rows.empty:
+            parts.append(f"run `{run}` did not try it")
+            continue
+        row = rows.iloc[0]
+        verdict = "supports it" if bool(row["significant"]) else "does not support it"
+        parts.append(f"run `{run}` {verdict} (its best fit earns BIC evidence {float(row['evidence_bic']):.3g})")
+    return (f"The lead `{lead}` on the other runs of this variant: " + "; ".join(parts) + ".") if parts else ""
+
+
 def run_disagreements(joints, threshold=DISAGREEMENT_SIGMA):
     """Parameters that the diagnoses of one model variant on different runs determine differently.
 

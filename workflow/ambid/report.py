@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .diagnosis_report import DISAGREEMENT_SIGMA, format_value, run_disagreements
+from .diagnosis_report import DISAGREEMENT_SIGMA, format_value, lead_support, run_disagreements
 from .errors import AmbidError
 from .findings import findings_frame, read_findings
 from .io import read_parquet, read_tsv
@@ -335,6 +335,17 @@ def _warnings_block(warnings):
                         "quoted; a `failure` must not be used as it is).")
 
 
+def _lead_support(root, run, runs, variant):
+    """The other runs' word on this run's lead (`ambid.diagnosis_report.lead_support`), as a paragraph, or ""."""
+    verdict = root / f"diagnose/{run}/{variant}/verdict.tsv"
+    lead = read_tsv(verdict).iloc[0].get("lead") if verdict.exists() else None  # NaN where the column is empty
+    lead = lead if isinstance(lead, str) else ""
+    rankings = {other: read_tsv(path) for other in runs
+                if other != run and (path := root / f"diagnose/{other}/{variant}/candidates.tsv").exists()}
+    sentence = lead_support(lead, rankings) if lead else ""
+    return f"\n\n{sentence}" if sentence else ""
+
+
 def _run_disagreements(root, runs, variant, shown=4):
     """A warning per pair of runs whose diagnoses of the last variant determine a parameter differently
     (`ambid.diagnosis_report.run_disagreements`)."""
@@ -564,7 +575,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 warnings += warnings_of(f"{diagnose}/findings.tsv", f"diagnosis of {variant} on {run}")
                 verdicts.insert(0, Text(f"**Diagnosis of the last variant, `{variant}`, on run `{run}`** "
                                         f"({_misfit_change(root / diagnose / 'verdict.tsv')}):\n\n"
-                                        + verdict_markdown(diagnosis)))
+                                        + verdict_markdown(diagnosis) + _lead_support(root, run, identification_runs, variant)))
             sections.append(Section(f"{variant} against {run}", [
                 Figure(root / compare / "figures/bode_compare.png", caption("compare_bode", run=run, variant=variant)),
                 Figure(root / compare / "figures/error_map.png", caption("compare_error_map", run=run, variant=variant)),
