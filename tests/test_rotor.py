@@ -1,5 +1,7 @@
 """Timoshenko rotor FEM against closed forms (Euler-Bernoulli, Timoshenko, rigid body)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -167,3 +169,17 @@ class TestValidation:
     def test_position_off_rotor(self):
         with pytest.raises(ConfigError, match="outside the rotor"):
             uniform(1.0, 0.05, 4).planar_displacement_row(1.5)
+
+
+def test_equal_rotors_share_their_modes_and_a_changed_one_does_not():
+    """A rotor rebuilt with the same elements (an update applied again) reuses the modes of the first; a modulus
+    changed by 1e-9 does not; a rotor whose tags are a list (unhashable) still gets its modes."""
+    rotor = uniform(1.0, 0.05, 10)
+    modes = rotor.planar_modes(6, (0.25,))
+    assert rotor.with_youngs_modulus_scaled([3], 1.0).planar_modes(6, (0.25,)) is modes
+    changed = rotor.with_youngs_modulus_scaled([3], 1.0 + 1e-9).planar_modes(6, (0.25,))
+    assert changed is not modes and not np.array_equal(changed.angular_frequency_rad_s, modes.angular_frequency_rad_s)
+    listed = Rotor(tuple(replace(e, tags=["shaft"]) for e in rotor.elements))
+    assert_allclose(listed.planar_modes(6, (0.25,)).angular_frequency_rad_s, modes.angular_frequency_rad_s)
+    row = rotor.planar_displacement_row(0.25)
+    assert row is rotor.planar_displacement_row(0.25) and not row.flags.writeable

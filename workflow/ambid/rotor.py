@@ -548,8 +548,13 @@ class Rotor:
         key = ("modes", n_modes, tuple(static_loads_m))
         if key in self._cache:  # a rotor is immutable: variants that change only damping or sensors reuse its modes
             return self._cache[key]
-        if (self, *key) in _MODES_OF_EQUAL_ROTORS:  # a copy with the same elements (an update applied again)
-            self._cache[key] = _MODES_OF_EQUAL_ROTORS[(self, *key)]
+        shared = (self, *key)
+        try:
+            hash(shared)
+        except TypeError:  # a rotor built with a list where a tuple belongs (tags, sleeve elements): not shared
+            shared = None
+        if shared is not None and shared in _MODES_OF_EQUAL_ROTORS:  # a copy with the same elements (an update again)
+            self._cache[key] = _MODES_OF_EQUAL_ROTORS[shared]
             return self._cache[key]
         planar = self.planar_matrices()
         n = planar["mass"].shape[0]
@@ -568,9 +573,10 @@ class Rotor:
         elif truncated:
             omega, shapes = omega[:n_modes], shapes[:, :n_modes]
         self._cache[key] = PlanarModes(angular_frequency_rad_s=omega, shapes=shapes)
-        if len(_MODES_OF_EQUAL_ROTORS) >= 64:
-            _MODES_OF_EQUAL_ROTORS.clear()
-        _MODES_OF_EQUAL_ROTORS[(self, *key)] = self._cache[key]
+        if shared is not None:
+            if len(_MODES_OF_EQUAL_ROTORS) >= 64:
+                _MODES_OF_EQUAL_ROTORS.clear()
+            _MODES_OF_EQUAL_ROTORS[shared] = self._cache[key]
         return self._cache[key]
 
     def modal_loss_factors(self, modes):
