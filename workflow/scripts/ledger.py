@@ -14,7 +14,7 @@ for path, verdict_path, run, variant in zip(snakemake.input.summaries, snakemake
     summary = read_tsv(path)
     maps[f"{variant} against {run}"] = summary
     summary = summary[summary["band"] == "all"].drop(columns="band")
-    verdict = read_tsv(verdict_path).fillna("").iloc[0]
+    verdict = {key: "" if pd.isna(value) else value for key, value in read_tsv(verdict_path).iloc[0].items()}  # empty: NaN
     text = {"missing": f"missing: {verdict['effects']}", "retune": f"retune: {verdict['retune']}",
             "unexplained": f"unexplained misfit: {verdict['unexplained']}", "nothing": "nothing missing"}[verdict["verdict"]]
     if verdict["verdict"] == "missing" and verdict["unexplained"]:
