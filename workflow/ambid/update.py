@@ -130,7 +130,7 @@ def measured_features(frame, channels, modes):
     wanted = set(channels)
     rows = frame[(frame["estimator"] == "output_error") & frame["kind"].isin(["resonance", "anti_resonance"])]
     if "flag" in rows:  # failed fits, negative delays, overdamped "resonances" (ambid.channel_fit.fit_verdict)
-        rows = rows[rows["flag"].fillna("") == ""]
+        rows = rows[rows["flag"].isna() | (rows["flag"] == "")]  # an all-empty column reads as NaN
     rows = rows[np.array([(o, i) in wanted for o, i in zip(rows["output"], rows["input"])], dtype=bool)]
     rows = rows[(rows["damping_ratio"] > 0) & (rows["damping_ratio"] < LIGHT_DAMPING)]
     # a root the fit cannot place (damping uncertain by more than its value: a near-cancelling pole-zero

@@ -55,7 +55,7 @@ resonances = features[(features["estimator"] == "output_error") & (features["kin
                       & features["damping_ratio"].between(0, 0.2)
                       & (features["frequency_std_hz"] < 0.01 * features["frequency_hz"])]
 if "flag" in resonances.columns:
-    resonances = resonances[resonances["flag"].fillna("") == ""]
+    resonances = resonances[resonances["flag"].isna() | (resonances["flag"] == "")]  # an all-empty column reads as NaN
 save_figure(campbell_diagram(modes, np.unique(np.round(resonances["frequency_hz"].to_numpy(float), 1)), max_frequency,
                              f"{machine_name}: Campbell diagram of the closed loop, model {last}"),
             snakemake.output.campbell_figure, snakemake.params.dpi)
