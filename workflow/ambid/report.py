@@ -338,8 +338,8 @@ def _warnings_block(warnings):
 def _lead_support(root, run, runs, variant):
     """The other runs' word on this run's lead (`ambid.diagnosis_report.lead_support`), as a paragraph, or ""."""
     verdict = root / f"diagnose/{run}/{variant}/verdict.tsv"
-    lead = read_tsv(verdict).iloc[0].get("lead") if verdict.exists() else None  # NaN where the column is empty
-    lead = lead if isinstance(lead, str) else ""
+    lead = read_tsv(verdict).iloc[0].get("lead") if verdict.exists() else None
+    lead = "" if pd.isna(lead) else lead  # an empty column reads back as NaN (as in the ledger rule)
     rankings = {other: read_tsv(path) for other in runs
                 if other != run and (path := root / f"diagnose/{other}/{variant}/candidates.tsv").exists()}
     sentence = lead_support(lead, rankings) if lead else ""

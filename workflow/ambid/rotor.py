@@ -550,12 +550,12 @@ class Rotor:
             return self._cache[key]
         shared = (self, *key)
         try:
-            hash(shared)
+            found = _MODES_OF_EQUAL_ROTORS.get(shared)  # a copy with the same elements (an update applied again)
         except TypeError:  # a rotor built with a list where a tuple belongs (tags, sleeve elements): not shared
-            shared = None
-        if shared is not None and shared in _MODES_OF_EQUAL_ROTORS:  # a copy with the same elements (an update again)
-            self._cache[key] = _MODES_OF_EQUAL_ROTORS[shared]
-            return self._cache[key]
+            shared = found = None
+        if found is not None:
+            self._cache[key] = found
+            return found
         planar = self.planar_matrices()
         n = planar["mass"].shape[0]
         truncated = n_modes is not None and n_modes < n
