@@ -56,6 +56,24 @@ def test_no_uncertainty_or_no_common_channel_is_an_error(demo_plant):
         channel_errors({("DY", "DY"): (F, model[("DX", "DX")], np.ones(F.size))}, model)
 
 
+def test_a_noise_free_channel_is_refused_by_name():
+    """A simulated log without noise: the cross channels of a decoupled machine read exactly zero with zero
+    uncertainty, which no misfit can weigh; the error names the channel instead of failing later as a division."""
+    import pandas as pd
+
+    from ambid.compare import measured_channels
+
+    frequency = np.array([10.0, 20.0, 30.0])
+    rows = [{"estimator": "siso", "output": "DX", "input": "DX", "frequency_hz": f, "re": 1e-6, "im": 0.0, "std": 1e-8,
+             "condition": np.nan, "systematic_std": 0.0} for f in frequency]
+    rows += [{"estimator": "current", "output": "DX", "input": "DX", "frequency_hz": f, "re": 0.5, "im": 0.0,
+              "std": 0.0 if f > 15 else 1e-3, "condition": np.nan, "systematic_std": 0.0} for f in frequency]
+    with pytest.raises(CompareError, match=r"current DX/DX: no uncertainty at 2 of 3 frequencies \(first 20 Hz\)"):
+        measured_channels(pd.DataFrame(rows))
+    rows[-1]["std"] = rows[-2]["std"] = 1e-3
+    assert set(measured_channels(pd.DataFrame(rows))) == {("DX", "DX"), ("I_DX", "DX")}
+
+
 def test_enough_modes_for_a_stiff_rotor_with_lumped_masses(demo_config):
     """A stiffer rotor carrying disks: the plain 12-mode truncation misses its anti-resonances by more than the floor
     tolerates; the static correction of `Rotor.planar_modes` keeps 12 modes enough, and `enough_modes` checks it."""

@@ -41,6 +41,13 @@ def quiet_run(hs_config):
 
 
 class TestEstimators:
+    def test_a_channel_that_reads_exactly_zero_has_a_finite_uncertainty(self):
+        from ambid.frf import _ratio
+
+        ratio, std = _ratio(np.array([0.0, 3 + 4j]), np.array([0.1, 0.1]), np.array([2.0, 2.0]), np.array([0.01, 0.01]))
+        assert_allclose(ratio, [0.0, 1.5 + 2j])
+        assert_allclose(std, [0.1 / 2, 2.5 * np.hypot(0.1 / 5, 0.01 / 2)])  # first order: the noise of n / d
+
     def test_siso_is_the_thesis_ratio(self, quiet_run):
         _, arrays = quiet_run
         frequency, coefficients, _ = arrays["DX"]

@@ -88,7 +88,14 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
         key = (current_channel(output) if estimator == "current" else output, input_axis)
         floor = current_floor if estimator == "current" else position_floor
         systematic = np.where(np.isfinite(systematic), systematic, floor * np.abs(values))
-        out[key] = (frequency, values, np.hypot(std, systematic))
+        combined = np.hypot(std, systematic)
+        weightless = ~(combined > 0)
+        if weightless.any():
+            raise CompareError(
+                f"channel {estimator} {output}/{input_axis}: no uncertainty at {int(weightless.sum())} of {weightless.size} "
+                f"frequencies (first {frequency[weightless][0]:.6g} Hz), so its misfit cannot be weighed: a noise-free log "
+                "(a simulation) has none; add the measurement's noise to it")
+        out[key] = (frequency, values, combined)
     if not out:
         raise CompareError("the FRF table holds no channel to compare")
     return out

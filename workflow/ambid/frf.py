@@ -67,7 +67,8 @@ def _v2(axis):
 def _ratio(numerator, numerator_std, denominator, denominator_std):
     """``numerator / denominator`` and its first-order standard deviation from independent noise of both."""
     ratio = numerator / denominator
-    std = np.abs(ratio) * np.sqrt((numerator_std / np.abs(numerator)) ** 2 + (denominator_std / np.abs(denominator)) ** 2)
+    # |r| sqrt((sn/|n|)^2 + (sd/|d|)^2) written without dividing by |n|: finite where a channel reads exactly zero
+    std = np.sqrt(numerator_std**2 + (np.abs(ratio) * denominator_std) ** 2) / np.abs(denominator)
     return ratio, std
 
 
