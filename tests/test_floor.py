@@ -151,16 +151,45 @@ class TestZeroAmplitude:
         assert np.mean(np.concatenate(normalized) ** 2) == pytest.approx(1.0, abs=0.25)
         assert taken > 0
 
-    def test_where_the_noise_dominates_the_measured_value_stays(self):
-        # 0.3 % noise against a 0.1 % amplitude error at 0.5 A: extrapolating costs more than it removes; at 2 A
-        # (1.6 %) it pays
+    def test_point_by_point_where_the_noise_dominates_the_measured_value_stays(self, monkeypatch):
+        # the rule for a channel whose pairs do not measure its amplitude dependence: 0.3 % noise against a 0.1 %
+        # amplitude error at 0.5 A, extrapolating costs more than it removes; at 2 A (1.6 %) it pays
+        import ambid.amplitude
+
         frame = synthetic_log(kappa=0.004, noise=3e-3, points=120)
-        extrapolated = frf_from_log(frame, ZERO_AMPLITUDE)[0]
         measured = frf_from_log(frame, DESCRIBING_FUNCTION)[0]
-        f, g, _ = siso_dx(extrapolated)
         _, g_measured, _ = siso_dx(measured)
+        f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
+        assert np.all(g != g_measured)  # the pairs at 2 A measure kappa: every step of DX/DX is extrapolated
+        monkeypatch.setattr(ambid.amplitude, "MEASURED_KAPPA", np.inf)
+        f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
         low, high = f < 150, f > 250
         assert np.mean(g[low] == g_measured[low]) > 0.8 and np.mean(g[high] == g_measured[high]) < 0.2
+
+    def test_a_channel_whose_amplitude_dependence_is_measured_goes_to_zero_amplitude_at_every_step(self, monkeypatch):
+        # 0.1 % noise: the pairs measure kappa (sum of |kappa|^2 / var far beyond n + 5 sqrt(n)); below 200 Hz,
+        # at 0.5 A, each step's 0.1 % amplitude error is within its noise, so the per-point rule keeps most measured
+        # values there, and over the band's 40 steps their common error is three or more times what their noise
+        # averages to (seeds 0-3: 3.1-5.2; every step at zero amplitude: 0.9-1.4)
+        import ambid.amplitude
+
+        frame = synthetic_log(kappa=0.004, noise=1e-3, points=120)
+
+        def low_band_bias():
+            table, floors, _ = frf_from_log(frame, ZERO_AMPLITUDE)
+            f, g, error = siso_dx(table)
+            low = f < 200
+            normalized = (g[low] - 1e-5 / (1 + 1j * f[low] / 300)) / error[low]
+            return abs(np.mean(normalized)) * np.sqrt(low.sum()), floors
+
+        bias, floors = low_band_bias()
+        positions = floors[floors["family"] == "positions"]
+        dx = positions["zero_amplitude_points"].sum()
+        assert bias < 2  # the mean normalized error (standard deviation 1 without bias)
+        monkeypatch.setattr(ambid.amplitude, "MEASURED_KAPPA", np.inf)  # the per-point rule alone
+        bias_per_point, floors = low_band_bias()
+        assert bias_per_point > 2.5
+        assert floors[floors["family"] == "positions"]["zero_amplitude_points"].sum() < dx
 
     def test_without_amplitude_dependence_it_is_unbiased_and_mostly_not_taken(self):
         # the floor's estimate from the pairs is noisy, so some points still take the extrapolation; their values and

@@ -20,11 +20,19 @@ neighbours' difference beyond their noise (half of it) becomes their systematic
 error: the interpolation cannot follow a coefficient that changes within a step,
 as it does at a lightly damped resonance.
 
-A point takes the extrapolated value only where its error variance (noise plus
-interpolation error) is below the measured point's noise plus its floor (the
-``two_level`` floor of `ambid.floor`): where the noise dominates, halving the
-amplitude costs more than the systematic error it removes.  The choice depends
-on estimated errors alone, never on the values, so it adds no bias.
+Where a channel's amplitude dependence is measured (its pairs' coefficients
+jointly `MEASURED_KAPPA` standard deviations away from zero: the positions near
+a bearing), every point of the channel takes the extrapolated value.  The describing function's error ``kappa A^2`` has one sign over a band,
+so points left at their amplitude, each within its noise, add up to a bias a fit
+over hundreds of points reads as physics (on the suite's demo20 rigs without a
+hidden effect, a sensor offset of 0.1 mm at BIC evidence 80-118); at zero
+amplitude the noise is larger but averages out.  Elsewhere (the cross channels
+and the coil currents, whose pairs are noise) a point takes the extrapolated
+value only where its error variance (noise plus interpolation error) is below the
+measured point's noise plus its floor (the ``two_level`` floor of `ambid.floor`):
+halving the amplitude costs more than the error it removes.  Both choices depend
+on estimated errors and on a whole channel's pairs, never on one point's value,
+so they add no bias.
 
 On by default (config ``frf.zero_amplitude``; false keeps the describing function
 at the measured amplitude with its two-level floor).  It trusts each point's
@@ -37,7 +45,11 @@ import numpy as np
 
 from .floor import excitation_amplitude_squared, family_of, level_pairs
 
-__all__ = ["zero_amplitude", "account_zero_amplitude"]
+__all__ = ["MEASURED_KAPPA", "zero_amplitude", "account_zero_amplitude"]
+
+#: A channel's amplitude dependence is measured where the sum over its n pairs of ``|kappa|^2 / var(kappa)`` (n on
+#: average where kappa is noise, with a standard deviation of sqrt(n)) exceeds n by this many standard deviations.
+MEASURED_KAPPA = 5.0
 
 
 def _interpolated(log_frequency, repeated, coefficient, variance):
@@ -61,7 +73,8 @@ def _interpolated(log_frequency, repeated, coefficient, variance):
 
 
 def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_pairs=5, max_ratio=0.9):
-    """The FRF table at zero excitation amplitude, where that estimate is the more accurate one.
+    """The FRF table at zero excitation amplitude: every point of a channel whose amplitude dependence is measured, else
+    where that estimate is the more accurate one.
 
     Parameters
     ----------
@@ -122,8 +135,12 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
         zero_noise = np.sqrt(noise[rows] ** 2 / np.abs(1 + k * a2) ** 2 + k_variance * a2**2 * np.abs(zero) ** 2)
         zero_noise[repeated] = np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2)
         zero_systematic = k_error * a2 * np.abs(zero)
-        measured_error = noise[rows] ** 2 + np.nan_to_num(systematic[rows]) ** 2
-        better = zero_noise**2 + zero_systematic**2 < measured_error
+        significance = np.abs(kappa) ** 2 / variance  # mean 1 where kappa is noise
+        if np.sum(significance) > significance.size + MEASURED_KAPPA * np.sqrt(significance.size):
+            better = np.ones(rows.size, dtype=bool)
+        else:
+            measured_error = noise[rows] ** 2 + np.nan_to_num(systematic[rows]) ** 2
+            better = zero_noise**2 + zero_systematic**2 < measured_error
         chosen = rows[better]
         new_values[chosen], new_noise[chosen], new_systematic[chosen] = zero[better], zero_noise[better], zero_systematic[better]
         extrapolated[chosen] = True
