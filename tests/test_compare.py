@@ -48,6 +48,23 @@ def test_a_missing_delay_shows_as_phase_lag_growing_with_frequency(demo_machine)
     assert fixed.loc[("DX", "DX", "300-1000 Hz"), "excess"] > 100 * max(fixed.loc[("DX", "DX", "0-10 Hz"), "excess"], 1.0)
 
 
+def test_points_inside_their_noise_carry_no_magnitude_or_phase_error(demo_plant):
+    """A decoupled plane's cross channel: the model is round-off, the measurement noise; its dB error (100 dB and more)
+    would swamp the overall rms the report prints, so only resolved points (|G| > 3 std) have one."""
+    model = model_channels(demo_plant, F, CHANNELS)
+    measured = measure(model, 0.01, 3)
+    rng = np.random.default_rng(3)
+    noise = 1e-9 * (rng.standard_normal(F.size) + 1j * rng.standard_normal(F.size)) / np.sqrt(2)
+    measured[("DY", "DX")] = (F, noise, np.full(F.size, 1e-9))
+    model[("DY", "DX")] = np.full(F.size, 1e-22 + 0j)
+    errors = channel_errors(measured, model)
+    cross = errors[errors["output"] == "DY"]
+    assert cross["magnitude_error_db"].isna().all() and cross["phase_error_deg"].isna().all()
+    assert cross["normalized_error"].notna().all()  # chi2 still counts every point
+    overall = summarize(errors).query("output == 'all'").iloc[0]
+    assert overall["rms_magnitude_db"] < 0.2 and overall["points"] == 3 * F.size
+
+
 def test_no_uncertainty_or_no_common_channel_is_an_error(demo_plant):
     model = model_channels(demo_plant, F, CHANNELS)
     with pytest.raises(CompareError, match="uncertainty"):

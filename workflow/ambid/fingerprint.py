@@ -87,8 +87,13 @@ def fingerprint(errors, summary, cells=None):
     """
     sentences = []
     overall = summary[(summary["output"] == "all")].iloc[0]
-    sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = the floor); rms magnitude error "
-                     f"{overall['rms_magnitude_db']:.2f} dB, rms phase error {overall['rms_phase_deg']:.2f} deg.")
+    if np.isfinite(overall["rms_magnitude_db"]):
+        sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = the floor); rms magnitude error "
+                         f"{overall['rms_magnitude_db']:.2f} dB, rms phase error {overall['rms_phase_deg']:.2f} deg "
+                         "(where the measurement resolves the response).")
+    else:
+        sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = the floor); no point resolves the response "
+                         "beyond three times its noise, so no magnitude or phase error.")
     if cells is not None:
         above = cells[cells["above_floor"]]
         if above.empty:
