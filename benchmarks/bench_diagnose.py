@@ -41,12 +41,13 @@ floor took its own pairs, stop 26: 41 and 35, and 41 and 36 extrapolated).  Stop
 same 42 and 40, final misfit 49 of 50; 4 of the 5 misses at the floor have the hidden effect as lead (the fifth,
 demo20's gyroscopic at 52 BIC, has noncollocation); 3 of the 4 negative controls carry a noncollocation lead; median
 diagnosis 2.0 -> 1.5 s.  Stop 30 (every step of a channel whose pairs measure its amplitude dependence taken to zero
-amplitude, `ambid.amplitude.MEASURED_KAPPA`): top-1 42 of 50 (demo20's gyroscopic 2026 now named alone; hs's
-foundation 2026, whose 13 % parameter error came from fitting the amplitude bias, now at the floor with truth evidence
-476 instead of 2630, its lead right), parameters 41, final misfit 50 of 50, 5 of the 6 misses at the floor with the
-hidden effect as lead, the sensor notch outside the library "unexplained" on both machines (was a foundation mode),
-negative controls 4 of 4 with one lead (foundation_mode, demo20 2027) instead of three noncollocation leads (and none
-on the invisible controller notch, which had them too).  About 8 minutes.
+amplitude, `ambid.amplitude.MEASURED_KAPPA`; no two-level floor in a channel inside its noise, `ambid.floor.RESOLVED`;
+the interpolated steps' error from the pairs' curvature): top-1 43 of 50 (hs foundation 2026 now named with its
+parameters within 1.9 %, demo20 modal damping 2027 chosen), parameters 42, final misfit 48 of 50 (hs's pairs delay +
+foundation and modal damping + sensor low-pass leave misfit, said "unexplained"), 3 of the 4 misses at the floor with
+the hidden effect as lead, the sensor notch outside the library "unexplained" on both machines (was a foundation
+mode), negative controls 4 of 4 with one lead (foundation_mode, demo20 2027) instead of three noncollocation leads
+(none on the invisible controller notch either, which had them).  About 8 minutes.
 """
 
 import concurrent.futures

@@ -371,8 +371,8 @@ def test_the_zero_amplitude_frf_gives_the_weak_foundation_its_mass(identificatio
     with the FRF at the measured amplitude and its floor the mass came out 81.8 +- 1.1 kg (6.7 %, 4.7 sigma; a strict
     xfail until stop 27), the force law's amplitude error being a systematic pattern the floor counts as independent
     errors; extrapolated to zero amplitude (``frf.zero_amplitude``, the default since stop 27) it is gone
-    (bench_extrapolation.py: 76.72 +- 0.12 kg; 76.66 +- 0.13 kg since every step of a measured channel goes to zero
-    amplitude, stop 30)."""
+    (bench_extrapolation.py: 76.72 +- 0.12 kg; 76.58 +- 0.12 kg since stop 30: every step of a measured channel at zero
+    amplitude, the interpolation's error from the pairs' curvature)."""
     machine_config = small_grid("demo20")
     draws = drawn("demo20", 7)
     rig = hidden_effect_rig(machine_config, [hidden_entry(draws, "foundation_mode")])

@@ -104,6 +104,19 @@ class TestTwoLevel:
         assert set(positions["method"]) == {"two_level"}
         assert (floors["zero_amplitude_points"] == 0).all()  # frf.zero_amplitude: false keeps the measured values
 
+    def test_a_channel_inside_its_noise_gets_no_floor_from_its_pairs(self):
+        # the axial sensor's response to a DX excitation (1e-9 m/A) is the size of its noise here: its pairs are
+        # ratios of noise, whose debiased, clipped estimates gave it a floor (median 0.16 of its noise with this seed,
+        # 0.4-0.8 on the decoupled planes' cross channels of the demo20 rig); the resolved DX/DX keeps kappa A^2 |G|
+        frame = synthetic_log(kappa=0.004, noise=2e-4, points=120, seed=2)
+        table = frf_from_log(frame, DESCRIBING_FUNCTION)[0]
+        z = table[(table["estimator"] == "siso") & (table["output"] == "Z") & (table["input"] == "DX")]
+        assert np.median(np.hypot(z["re"], z["im"]) / z["std"]) < 3 and (z["systematic_std"] == 0).all()
+        dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")]
+        magnitude = np.hypot(dx["re"], dx["im"])
+        amplitude = np.where(dx["frequency_hz"] < 200, 0.5, 2.0)
+        assert np.median(dx["systematic_std"] / (0.004 * amplitude**2 * magnitude)) == pytest.approx(1.0, rel=0.1)
+
     def test_without_repeats_the_constant_applies_and_says_so(self):
         frame = synthetic_log(kappa=0.004, noise=1e-4, repeat_ratio=None)
         table, floors, _ = frf_from_log(frame, FloorSettings(fallback_floor=(("positions", 0.03), ("axial", 0.02),
@@ -156,15 +169,20 @@ class TestZeroAmplitude:
         # amplitude error at 0.5 A, extrapolating costs more than it removes; at 2 A (1.6 %) it pays
         import ambid.amplitude
 
-        frame = synthetic_log(kappa=0.004, noise=3e-3, points=120)
-        measured = frf_from_log(frame, DESCRIBING_FUNCTION)[0]
-        _, g_measured, _ = siso_dx(measured)
-        f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
-        assert np.all(g != g_measured)  # the pairs at 2 A measure kappa: every step of DX/DX is extrapolated
-        monkeypatch.setattr(ambid.amplitude, "MEASURED_KAPPA", np.inf)
-        f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
-        low, high = f < 150, f > 250
-        assert np.mean(g[low] == g_measured[low]) > 0.8 and np.mean(g[high] == g_measured[high]) < 0.2
+        kept_low, kept_high = [], []
+        for seed in range(4):  # the share kept varies from seed to seed (0.79-1.0 below 150 Hz)
+            frame = synthetic_log(kappa=0.004, noise=3e-3, points=120, seed=seed)
+            measured = frf_from_log(frame, DESCRIBING_FUNCTION)[0]
+            _, g_measured, _ = siso_dx(measured)
+            f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
+            assert np.all(g != g_measured)  # the pairs at 2 A measure kappa: every step of DX/DX is extrapolated
+            with monkeypatch.context() as patch:
+                patch.setattr(ambid.amplitude, "MEASURED_KAPPA", np.inf)
+                f, g, _ = siso_dx(frf_from_log(frame, ZERO_AMPLITUDE)[0])
+            low, high = f < 150, f > 250
+            kept_low.append(np.mean(g[low] == g_measured[low]))
+            kept_high.append(np.mean(g[high] == g_measured[high]))
+        assert np.mean(kept_low) > 0.8 and np.mean(kept_high) < 0.2, (kept_low, kept_high)
 
     def test_a_channel_whose_amplitude_dependence_is_measured_goes_to_zero_amplitude_at_every_step(self, monkeypatch):
         # 0.1 % noise: the pairs measure kappa (sum of |kappa|^2 / var far beyond n + 5 sqrt(n)); below 200 Hz,
@@ -190,6 +208,22 @@ class TestZeroAmplitude:
         bias_per_point, floors = low_band_bias()
         assert bias_per_point > 2.5
         assert floors[floors["family"] == "positions"]["zero_amplitude_points"].sum() < dx
+
+    def test_the_interpolation_error_is_that_of_a_line_through_the_neighbouring_pairs(self):
+        # linear interpolation of a coefficient that is linear in log frequency is exact; of one that is quadratic,
+        # c x^2, it errs by c w (1 - w) h^2 at the fraction w of a spacing h: the pairs' own curvature says so
+        from ambid.amplitude import _interpolated
+
+        x = np.log(np.geomspace(10.0, 1000.0, 41))
+        repeated = np.arange(0, 41, 2)
+        for coefficient, expected in ((0.3 + 0.02j * x, 0.0), (0.004 * x**2, 0.004)):
+            value, noise, error = _interpolated(x, repeated, coefficient[repeated], np.zeros(repeated.size))
+            between = np.setdiff1d(np.arange(41), repeated)
+            spacing = x[between + 1] - x[between - 1]
+            actual = np.abs(value[between] - coefficient[between])
+            np.testing.assert_allclose(error[between], expected * spacing**2 / 4, rtol=1e-6, atol=1e-12)
+            np.testing.assert_allclose(actual, error[between], rtol=1e-6, atol=1e-12)
+            assert np.all(error[repeated] == 0) and np.all(noise == 0)
 
     def test_without_amplitude_dependence_it_is_unbiased_and_mostly_not_taken(self):
         # the floor's estimate from the pairs is noisy, so some points still take the extrapolation; their values and

@@ -15,10 +15,11 @@ zero amplitude, which is what the model predicts::
 with the amplitude coefficient ``kappa = (G(A) / G_0 - 1) / A^2`` interpolated
 (linear in log frequency) from the nearest repeated steps either side: the
 coefficient, not the correction, is smooth in frequency when the adaptive
-amplitude changes from step to step.  Its noise adds to theirs, and the two
-neighbours' difference beyond their noise (half of it) becomes their systematic
-error: the interpolation cannot follow a coefficient that changes within a step,
-as it does at a lightly damped resonance.
+amplitude changes from step to step.  Its noise adds to theirs, and the
+interpolation's own error, from the curvature the pairs show (each pair against
+the line through its neighbours, beyond their noise), becomes their systematic
+error: the interpolation cannot follow a coefficient that changes within a few
+steps, as it does at a lightly damped resonance.
 
 Where a channel's amplitude dependence is measured (its pairs' coefficients
 jointly `MEASURED_KAPPA` standard deviations away from zero: the positions near
@@ -45,11 +46,23 @@ import numpy as np
 
 from .floor import excitation_amplitude_squared, family_of, level_pairs
 
-__all__ = ["MEASURED_KAPPA", "zero_amplitude", "account_zero_amplitude"]
+__all__ = ["MEASURED_KAPPA", "amplitude_dependence", "zero_amplitude", "account_zero_amplitude"]
 
-#: A channel's amplitude dependence is measured where the sum over its n pairs of ``|kappa|^2 / var(kappa)`` (n on
-#: average where kappa is noise, with a standard deviation of sqrt(n)) exceeds n by this many standard deviations.
+#: A channel's amplitude dependence is measured where its pairs put it this many standard deviations from zero
+#: (`amplitude_dependence`).
 MEASURED_KAPPA = 5.0
+
+
+def amplitude_dependence(kappa, variance):
+    """How far a channel's pairs put its amplitude coefficient from zero, in standard deviations.
+
+    ``(sum |kappa_k|^2 / var_k - n) / sqrt(n)`` over its ``n`` pairs: each term has
+    mean 1 where kappa is noise, so the sum is ``n`` with a standard deviation of
+    about ``sqrt(n)`` (first order; in a channel whose response is inside its noise
+    the terms are ratios of noise and the sum reads lower).
+    """
+    significance = np.abs(kappa) ** 2 / variance
+    return float((np.sum(significance) - significance.size) / np.sqrt(significance.size))
 
 
 def _interpolated(log_frequency, repeated, coefficient, variance):
@@ -63,11 +76,24 @@ def _interpolated(log_frequency, repeated, coefficient, variance):
     x = log_frequency[repeated]
     right = np.clip(np.searchsorted(x, log_frequency), 1, x.size - 1)
     left = right - 1
-    weight = np.clip((log_frequency - x[left]) / np.maximum(x[right] - x[left], 1e-12), 0.0, 1.0)
+    spacing = np.maximum(x[right] - x[left], 1e-12)
+    weight = np.clip((log_frequency - x[left]) / spacing, 0.0, 1.0)
     value = (1 - weight) * coefficient[left] + weight * coefficient[right]
     noise = (1 - weight) ** 2 * variance[left] + weight**2 * variance[right]
-    spread = np.abs(coefficient[right] - coefficient[left]) ** 2 - variance[left] - variance[right]
-    error = 0.5 * np.sqrt(np.clip(spread, 0.0, None))
+    # linear interpolation errs by w (1 - w) h^2 kappa'' / 2 at the fraction w of a spacing h; each interior pair's
+    # leave-one-out residual (its neighbours' line against its own estimate, beyond their noise) measures
+    # (kappa'' / 2)^2, averaged over the two pairs either side of a step; a coefficient that changes within a few steps
+    # (a lightly damped resonance) has large residuals there, one that changes linearly none
+    curvature = np.zeros(x.size)
+    if x.size >= 3:
+        span = np.maximum(x[2:] - x[:-2], 1e-12)
+        u = (x[1:-1] - x[:-2]) / span
+        residual = coefficient[1:-1] - ((1 - u) * coefficient[:-2] + u * coefficient[2:])
+        beyond = np.abs(residual) ** 2 - variance[1:-1] - (1 - u) ** 2 * variance[:-2] - u**2 * variance[2:]
+        curvature[1:-1] = beyond / np.maximum(u * (1 - u) * span**2, 1e-300) ** 2
+        curvature[0], curvature[-1] = curvature[1], curvature[-2]
+    local = np.clip(0.5 * (curvature[left] + curvature[right]), 0.0, None)
+    error = weight * (1 - weight) * (x[right] - x[left]) ** 2 * np.sqrt(local)
     value[repeated], noise[repeated], error[repeated] = coefficient, 0.0, 0.0
     return value, noise, error
 
@@ -135,8 +161,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
         zero_noise = np.sqrt(noise[rows] ** 2 / np.abs(1 + k * a2) ** 2 + k_variance * a2**2 * np.abs(zero) ** 2)
         zero_noise[repeated] = np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2)
         zero_systematic = k_error * a2 * np.abs(zero)
-        significance = np.abs(kappa) ** 2 / variance  # mean 1 where kappa is noise
-        if np.sum(significance) > significance.size + MEASURED_KAPPA * np.sqrt(significance.size):
+        if amplitude_dependence(kappa, variance) > MEASURED_KAPPA:
             better = np.ones(rows.size, dtype=bool)
         else:
             measured_error = noise[rows] ** 2 + np.nan_to_num(systematic[rows]) ** 2

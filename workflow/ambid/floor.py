@@ -23,7 +23,8 @@ data support:
     Steps measured again at a lower amplitude (log ``level`` 1, `ambid.logs`):
     ``d = G_0 / G_1 - 1 = kappa (A_0^2 - A_1^2)`` gives ``kappa`` of each channel
     per pair (``A = |U2|``, the excitation amplitude); the noise-debiased rms of the
-    nearest pairs' ``kappa`` times ``A^2 |G|`` at each step is its systematic error.
+    nearest pairs' ``kappa`` times ``A^2 |G|`` at each step is its systematic error
+    (none in a channel whose response is inside its noise, `RESOLVED`).
 ``fallback``
     A documented constant relative floor (config ``frf.fallback_floor``) where
     the data cannot tell: the smooth part of the amplitude-dependent error is
@@ -59,7 +60,7 @@ from .errors import ConfigError
 from .logs import CHANNELS
 from .machine import AXIAL_AXIS, RADIAL_AXES
 
-__all__ = ["FAMILIES", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
+__all__ = ["FAMILIES", "RESOLVED", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
            "smooth_fit_ratio", "pooled_noise", "pool_variance", "systematic_floor"]
 
@@ -67,6 +68,10 @@ _KEYS = ["estimator", "output", "input"]
 
 #: Channel families whose floors are estimated apart: radial positions (SISO and MIMO), axial position, coil currents.
 FAMILIES = ("positions", "axial", "currents")
+
+#: A channel's response is resolved where its median ``|G| / std`` exceeds this; the pairs of one that is not give
+#: it no two-level floor.
+RESOLVED = 3.0
 
 
 @dataclass(frozen=True)
@@ -476,8 +481,14 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
         if estimator == "mimo" and (estimates is None or estimates[0].size < settings.min_pairs):
             estimates = coefficients.get(("siso", output, input_axis))
         if estimates is not None and estimates[0].size >= settings.min_pairs:
-            kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
-            systematic[order] = kappa * excitation[order] * magnitude[order]
+            if np.median(magnitude[order] / table.loc[order, "std"].to_numpy()) > RESOLVED:
+                kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
+                systematic[order] = kappa * excitation[order] * magnitude[order]
+            else:
+                # a response inside its noise (a decoupled plane's cross channel): its pairs are ratios of noise, whose
+                # debiased estimates, clipped at zero, would give it a floor of about half its noise; its amplitude
+                # error is a fraction of a response the noise already covers
+                systematic[order] = 0.0
             pairs[order] = estimates[0].size
 
     # noise that the scatter between neighbouring steps shows to be smaller than the propagated logged noise (the
