@@ -236,6 +236,7 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
                                                                                        "source": "data"}}}}
     config["machines"]["demo20"]["variants"] = {"updated": {"update": "user01"}}
     config["update"]["starts"] = 3
+    config["diagnose"]["sequence_length"] = 1  # the first choice is what is checked below
     (workdir / "config/config.yaml").write_text(yaml.safe_dump(config))
     base = workdir / "results/demo20/update/user01"
     result = snakemake(workdir, str(base.relative_to(workdir) / "comparison.tsv"))
