@@ -63,6 +63,9 @@ def test_points_inside_their_noise_carry_no_magnitude_or_phase_error(demo_plant)
     assert cross["normalized_error"].notna().all()  # chi2 still counts every point
     overall = summarize(errors).query("output == 'all'").iloc[0]
     assert overall["rms_magnitude_db"] < 0.2 and overall["points"] == 3 * F.size
+    # a noise point beyond three sigma against the model's round-off: no dB error either
+    measured[("DY", "DX")] = (F, np.full(F.size, 4e-9 + 0j), np.full(F.size, 1e-9))
+    assert channel_errors(measured, model).query("output == 'DY'")["magnitude_error_db"].isna().all()
 
 
 def test_no_uncertainty_or_no_common_channel_is_an_error(demo_plant):

@@ -300,8 +300,8 @@ def channel_errors(measured, model):
     -------
     pandas.DataFrame
         ``output, input, frequency_hz, magnitude_error_db, phase_error_deg, normalized_error``; the
-        magnitude and phase errors are NaN where the measurement does not resolve the response
-        (``|G| <= 3 std``) or either side is zero.
+        magnitude and phase errors are NaN where the measurement or the model is inside the noise
+        (``|G| <= 3 std``).
     """
     rows = []
     for (output, input_axis), (frequency, values, std) in measured.items():
@@ -314,9 +314,9 @@ def channel_errors(measured, model):
             raise CompareError(f"channel {output}/{input_axis}: the measurement has no positive, finite uncertainty")
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = predicted / values
-        # a channel the model (or data) lacks, or a point inside its noise (a decoupled plane's cross channel: its dB
-        # error would be the noise against the model's round-off, 100 dB and more), has no magnitude or phase error
-        resolved = np.isfinite(ratio) & (ratio != 0) & (np.abs(values) > 3 * std)
+        # a channel the model (or data) lacks, or a point inside the noise on either side (a decoupled plane's cross
+        # channel: the noise against the model's round-off, 100 dB and more), has no magnitude or phase error
+        resolved = np.isfinite(ratio) & (ratio != 0) & (np.minimum(np.abs(values), np.abs(predicted)) > 3 * std)
         ratio = np.where(resolved, ratio, np.nan)
         rows.append(pd.DataFrame({"output": output, "input": input_axis, "frequency_hz": frequency,
                                   "magnitude_error_db": 20 * np.log10(np.abs(ratio)),

@@ -90,7 +90,7 @@ def fingerprint(errors, summary, cells=None):
     if np.isfinite(overall["rms_magnitude_db"]):
         sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = the floor); rms magnitude error "
                          f"{overall['rms_magnitude_db']:.2f} dB, rms phase error {overall['rms_phase_deg']:.2f} deg "
-                         "(where the measurement resolves the response).")
+                         "(where measurement and model resolve the response).")
     else:
         sentences.append(f"Overall chi2 per point {overall['chi2']:.3g} (1 = the floor); no point resolves the response "
                          "beyond three times its noise, so no magnitude or phase error.")
