@@ -23,11 +23,12 @@ steps, as it does at a lightly damped resonance.
 
 Where a channel's amplitude dependence is measured (its pairs' coefficients
 jointly `MEASURED_KAPPA` standard deviations away from zero: the positions near
-a bearing), every point of the channel takes the extrapolated value.  The describing function's error ``kappa A^2`` has one sign over a band,
-so points left at their amplitude, each within its noise, add up to a bias a fit
-over hundreds of points reads as physics (on the suite's demo20 rigs without a
-hidden effect, a sensor offset of 0.1 mm at BIC evidence 80-118); at zero
-amplitude the noise is larger but averages out.  Elsewhere (the cross channels
+a bearing), every point of the channel takes the extrapolated value.  The
+describing function's error ``kappa A^2`` has one sign over a band, so points
+left at their amplitude, each within its noise, add up to a bias a fit over
+hundreds of points reads as physics (on the suite's demo20 rigs without a hidden
+effect, a sensor offset of 0.1 mm at BIC evidence 80-118); at zero amplitude the
+noise is larger but averages out.  Elsewhere (the cross channels
 and the coil currents, whose pairs are noise) a point takes the extrapolated
 value only where its error variance (noise plus interpolation error) is below the
 measured point's noise plus its floor (the ``two_level`` floor of `ambid.floor`):
@@ -93,7 +94,7 @@ def _interpolated(log_frequency, repeated, coefficient, variance):
         curvature[1:-1] = beyond / np.maximum(u * (1 - u) * span**2, 1e-300) ** 2
         curvature[0], curvature[-1] = curvature[1], curvature[-2]
     local = np.clip(0.5 * (curvature[left] + curvature[right]), 0.0, None)
-    error = weight * (1 - weight) * (x[right] - x[left]) ** 2 * np.sqrt(local)
+    error = weight * (1 - weight) * spacing**2 * np.sqrt(local)
     value[repeated], noise[repeated], error[repeated] = coefficient, 0.0, 0.0
     return value, noise, error
 

@@ -92,9 +92,9 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
         weightless = ~(combined > 0)
         if weightless.any():
             raise CompareError(
-                f"channel {estimator} {output}/{input_axis}: no uncertainty at {int(weightless.sum())} of {weightless.size} "
-                f"frequencies (first {frequency[weightless][0]:.6g} Hz), so its misfit cannot be weighed: a noise-free log "
-                "(a simulation) has none; add the measurement's noise to it")
+                f"channel {estimator} {output}/{input_axis}: no uncertainty at {int(weightless.sum())} of "
+                f"{weightless.size} frequencies (first {frequency[weightless][0]:.6g} Hz), so its misfit cannot be "
+                "weighed: a noise-free log (a simulation) has none; add the measurement's noise to it")
         out[key] = (frequency, values, combined)
     if not out:
         raise CompareError("the FRF table holds no channel to compare")
