@@ -30,7 +30,7 @@ import pandas as pd
 
 from .effects import COIL_CURRENT_EFFECTS, at_excitation_level, series_state_space
 from .errors import AmbidError
-from .floor import band_labels, frequency_bands
+from .floor import RESOLVED, band_labels, frequency_bands
 from .frf import channel
 from .loop import zero_order_hold
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
@@ -301,7 +301,7 @@ def channel_errors(measured, model):
     pandas.DataFrame
         ``output, input, frequency_hz, magnitude_error_db, phase_error_deg, normalized_error``; the
         magnitude and phase errors are NaN where the measurement or the model is inside the noise
-        (``|G| <= 3 std``).
+        (``|G| <= RESOLVED std``, `ambid.floor.RESOLVED`: 3).
     """
     rows = []
     for (output, input_axis), (frequency, values, std) in measured.items():
@@ -316,7 +316,7 @@ def channel_errors(measured, model):
             ratio = predicted / values
         # a channel the model (or data) lacks, or a point inside the noise on either side (a decoupled plane's cross
         # channel: the noise against the model's round-off, 100 dB and more), has no magnitude or phase error
-        resolved = np.isfinite(ratio) & (ratio != 0) & (np.minimum(np.abs(values), np.abs(predicted)) > 3 * std)
+        resolved = np.isfinite(ratio) & (ratio != 0) & (np.minimum(np.abs(values), np.abs(predicted)) > RESOLVED * std)
         ratio = np.where(resolved, ratio, np.nan)
         rows.append(pd.DataFrame({"output": output, "input": input_axis, "frequency_hz": frequency,
                                   "magnitude_error_db": 20 * np.log10(np.abs(ratio)),
