@@ -36,6 +36,13 @@ class TestController:
         ours = self.controller.frequency_response([10.0, 700.0, 4000.0])
         assert_allclose(ours, np.polyval(np.squeeze(ref_num), z) / np.polyval(ref_den, z), rtol=1e-6)
 
+    def test_state_space_is_scipys_realization(self):
+        """The controller's state space is `scipy.signal.tf2ss`'s controllable canonical form, entry for entry."""
+        for controller in (self.controller, Controller(2e4, 10.0, 5000, 3e5), Controller(1.5e4, 30.0, 2500, notch_hz=1200.0, notch_width_hz=100.0)):
+            for ours, reference in zip(controller.discrete_state_space(), scipy.signal.tf2ss(*controller.discrete_tf())):
+                assert ours.shape == reference.shape
+                assert_allclose(ours, reference, rtol=1e-14, atol=0)
+
     def test_notch_is_exact_at_its_frequency(self):
         notched = Controller(1.5e4, 30.0, 2500, notch_hz=1200.0, notch_width_hz=100.0)
         assert abs(notched.frequency_response([1200.0])[0]) < 1e-6 * abs(notched.frequency_response([100.0])[0])

@@ -6,6 +6,7 @@ version) so the same inputs give byte-identical files.
 
 import textwrap
 import matplotlib
+import matplotlib.collections
 import matplotlib.colors
 import matplotlib.ticker
 
@@ -76,19 +77,40 @@ def _phase_axis(axis):
     axis.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(nbins=6, steps=[4.5, 9]))  # multiples of 45 or 90 deg
 
 
+def _fixed_margins(size_in, rows, columns, left, right, top, bottom, between_columns, between_rows):
+    """GridSpec keywords for ``rows x columns`` panels with margins and gaps fixed in inches.
+
+    The figures here carry known labels, so their room is set, not measured:
+    a layout engine measures every tick label of every axis twice, half the
+    drawing time of a many-panel figure.
+    """
+    width, height = size_in
+    panel_width = (width - left - right - (columns - 1) * between_columns) / columns
+    panel_height = (height - top - bottom - (rows - 1) * between_rows) / rows
+    return dict(left=left / width, right=1 - right / width, bottom=bottom / height, top=1 - top / height,
+                wspace=between_columns / panel_width, hspace=between_rows / panel_height)
+
+
+def _title(figure, title):
+    """The figure's title a fixed 0.12 inch below its top edge (with `_fixed_margins`, whatever the figure's height)."""
+    figure.suptitle(title, y=1 - 0.12 / figure.get_figheight(), va="top")
+
+
 def _bode_grid(panels, columns=2, width=11.0, height=3.6):
     """Figure and one (magnitude, phase) pair of axes per panel, laid out ``columns`` wide to be read at page width.
 
     Panels fill rows left to right; each pair is magnitude above phase sharing
-    the frequency axis; the figure uses constrained layout (no tight_layout).
+    the frequency axis (`_fixed_margins`).
     """
     columns = max(1, min(columns, panels))
     rows = -(-panels // columns)
-    figure = plt.figure(figsize=(width if columns > 1 else width / 1.7, height * rows + 0.7), layout="constrained")
-    outer = figure.add_gridspec(rows, columns)
+    size = (width if columns > 1 else width / 1.7, height * rows + 0.7)
+    figure = plt.figure(figsize=size)
+    outer = figure.add_gridspec(rows, columns, **_fixed_margins(size, rows, columns, left=0.85, right=0.2, top=0.65,
+                                                                bottom=0.55, between_columns=0.95, between_rows=0.85))
     pairs = []
     for k in range(panels):
-        inner = outer[divmod(k, columns)].subgridspec(2, 1, height_ratios=[1.3, 1], hspace=0.0)
+        inner = outer[divmod(k, columns)].subgridspec(2, 1, height_ratios=[1.3, 1], hspace=0.08)
         magnitude = figure.add_subplot(inner[0])
         phase = figure.add_subplot(inner[1], sharex=magnitude)
         magnitude.tick_params(labelbottom=False)
@@ -125,7 +147,7 @@ def bode_matrix(frequency_hz, response, outputs, inputs, title, unit="m/A"):
         phase.grid(True, which="both", alpha=0.3)
         _phase_axis(phase)
     pairs[0][0].legend(title="output", fontsize=7, title_fontsize=7)
-    figure.suptitle(title)
+    _title(figure, title)
     return figure
 
 
@@ -187,7 +209,7 @@ def bode_measured(channels, title, unit="m/A", fits=None):
             axis.grid(True, which="both", alpha=0.3)
     if fits is not None:
         pairs[0][0].legend(fontsize=7, loc="lower left")
-    figure.suptitle(title)
+    _title(figure, title)
     return figure
 
 
@@ -386,7 +408,7 @@ def bode_compare(measured, models, channels, title):
         for axis in (magnitude, phase):
             axis.grid(True, which="both", alpha=0.3)
     pairs[0][0].legend(fontsize=7, loc="best")
-    figure.suptitle(title)
+    _title(figure, title)
     return figure
 
 
@@ -412,8 +434,14 @@ def _not_measured_background(axis):
                                                 edgecolor="0.6", hatch="///", lw=0, zorder=0))
 
 
-def _misfit_colorbar(figure, image, axes, label):
-    bar = figure.colorbar(image, ax=axes, extend="both", label=label, fraction=0.04, pad=0.02)
+def _misfit_colorbar(figure, image, axes, label, height_in=4.5):
+    """The misfit scale right of ``axes``, level with their top, at most ``height_in`` tall."""
+    boxes = [axis.get_position() for axis in np.atleast_1d(axes).flat]
+    top, bottom, right = max(b.y1 for b in boxes), min(b.y0 for b in boxes), max(b.x1 for b in boxes)
+    width_in, figure_height_in = figure.get_size_inches()
+    height = min(top - bottom, height_in / figure_height_in)
+    bar = figure.colorbar(image, cax=figure.add_axes((right + 0.2 / width_in, top - height, 0.15 / width_in, height)),
+                          extend="both", label=label)
     bar.ax.axhline(1.0, color="k", lw=2)
     ticks = [t for t in (0.1, 1, 10, 100, 1e3, 1e4, 1e5, 1e6) if MISFIT_RANGE[0] <= t <= MISFIT_RANGE[1]]
     bar.set_ticks(ticks, labels=["1 = floor" if t == 1 else f"{t:g}" for t in ticks])
@@ -429,7 +457,10 @@ def error_map(errors, title):
     for every variant, so a colour means the same misfit on every map.
     """
     channels = list(dict.fromkeys(zip(errors["output"], errors["input"])))
-    figure, axis = plt.subplots(figsize=(10, 0.3 * len(channels) + 1.8), layout="constrained")
+    size = (10, 0.3 * len(channels) + 1.8)
+    figure, axes = plt.subplots(figsize=size, squeeze=False, gridspec_kw=_fixed_margins(
+        size, 1, 1, left=0.8, right=1.3, top=0.4, bottom=0.55, between_columns=0, between_rows=0))
+    axis = axes[0, 0]
     cmap, norm = _misfit_colours()
     _not_measured_background(axis)
     image = None
@@ -479,19 +510,24 @@ def excess_maps(summaries, title, columns=2):
     span = (min(e[0] for e in edges), max(e[1] for e in edges))
     columns = max(1, min(columns, len(parts)))
     rows = -(-len(parts) // columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(5.0 * columns + 1.2, (0.24 * len(channels) + 1.2) * rows + 0.6),
-                                squeeze=False, layout="constrained")
+    size = (5.0 * columns + 1.2, (0.24 * len(channels) + 1.2) * rows + 0.6)
+    figure, axes = plt.subplots(rows, columns, figsize=size, squeeze=False, gridspec_kw=_fixed_margins(
+        size, rows, columns, left=0.8, right=1.3, top=0.7, bottom=0.45, between_columns=0.8, between_rows=0.65))
     cmap, norm = _misfit_colours()
     image = None
     for axis, (label, frame) in zip(axes.flat, parts.items()):
         _not_measured_background(axis)
+        cells, values = [], []  # one collection of the panel's cells: an artist per cell took seconds to draw
         for row in frame[frame["points"] > 0].itertuples():
             i = channels.index((row.output, row.input))
             low, high = _band_edges(row.band)
-            image = axis.pcolormesh([low, high], [i - 0.5, i + 0.5], [[row.chi2]], cmap=cmap, norm=norm, shading="flat",
-                                    edgecolors="white", linewidth=0.3)
+            cells.append([(low, i - 0.5), (high, i - 0.5), (high, i + 0.5), (low, i + 0.5)])
+            values.append(row.chi2)
             axis.text(np.sqrt(low * high) if low > 0 else 0.5 * high, i, _compact(row.chi2), ha="center", va="center",
                       fontsize=5.5, color="white" if row.chi2 > 300 else "black")
+        if cells:
+            image = axis.add_collection(matplotlib.collections.PolyCollection(
+                cells, array=np.asarray(values, dtype=float), cmap=cmap, norm=norm, edgecolors="white", linewidths=0.3))
         axis.set_xscale("log" if span[0] > 0 else "linear")
         axis.set_xlim(*span)
         axis.set_xlabel("frequency [Hz] (cells: the bands of each channel family)", fontsize=7)
@@ -501,7 +537,7 @@ def excess_maps(summaries, title, columns=2):
         axis.set_title(label, fontsize=9)
     for axis in list(axes.flat)[len(parts):]:
         axis.set_axis_off()
-    figure.suptitle(title)
+    _title(figure, title)
     _misfit_colorbar(figure, image, axes, "chi2 per point")
     return figure
 
@@ -526,7 +562,7 @@ def residual_fingerprint(measured, model, predicted, channels, title, candidate_
         for axis in (magnitude, phase):
             axis.grid(True, which="both", alpha=0.3)
     pairs[0][0].legend(fontsize=7)
-    figure.suptitle(title)
+    _title(figure, title)
     return figure
 
 
