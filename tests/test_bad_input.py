@@ -209,7 +209,8 @@ def test_case1_a_typo_excluded_when_allowed_leaves_the_update_right(workdir):
     findings = pd.read_csv(workdir / "results/demo20/frf/thesis01/findings.tsv", sep="\t")
     excluded = findings[findings["code"] == "outlier_excluded"].reset_index(drop=True)  # beside the floor's notes
     assert len(excluded) == 1 and f"{EXAMPLE_LOG}:20" in excluded.loc[0, "message"]
-    assert set(findings["code"]) - {"outlier_excluded"} <= {"floor_fallback", "noise_rescaled"}
+    # besides the floor's notes and the thesis .m's lack of repeated steps, nothing
+    assert set(findings["code"]) - {"outlier_excluded"} <= {"floor_fallback", "noise_rescaled", "no_repeats"}
     comparison = pd.read_csv(workdir / UPDATE, sep="\t")
     first = comparison[(comparison["quantity"] == "frequency") & (comparison["root"] == "pole")]
     assert first["measured"].between(455.0, 455.5).all() and first["updated"].between(454.0, 456.5).all()

@@ -232,6 +232,9 @@ def test_a_weak_narrow_housing_mode_between_scan_points_is_a_lead_where_the_misf
     assert "lead" in {f.code for f in diagnosis_findings(diagnosis)}
     _, text = diagnosis_report(diagnosis, Plant(machine), measured, None, "demo20 lead")
     assert "**Nothing is missing at the floor**" in text and "A lead, not a finding: the data favour `foundation_mode`" in text
+    assert "no step repeated" not in text  # unknown, or repeats measured: no caveat
+    _, text = diagnosis_report(diagnosis, Plant(machine), measured, None, "demo20 lead", repeated_steps=0)
+    assert "no step repeated at a lower amplitude" in text and "describing function" in text
 
 
 def test_no_lead_on_noise_alone(demo):

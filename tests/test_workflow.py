@@ -173,8 +173,12 @@ def test_real_logs_in_thesis_m_format(workdir):
     assert result.returncode == 0, result.stderr[-3000:]
     assert re.search(r"^import_log\s+1$", result.stdout + result.stderr, re.M)  # the Job stats table
     assert "acquire_identification" not in result.stdout + result.stderr
-    frame, _ = read_parquet(workdir / "results/demo20/frf/mine01/frf.parquet", kind="frf")
+    frame, info = read_parquet(workdir / "results/demo20/frf/mine01/frf.parquet", kind="frf")
     assert set(frame["estimator"]) == {"siso", "mimo", "current"}
+    # a thesis .m has no repeated steps: the FRF says so, for the diagnosis' leads and the report
+    assert info["metadata"]["repeated_steps"] == 0
+    findings = pd.read_csv(workdir / "results/demo20/frf/mine01/findings.tsv", sep="\t")
+    assert "no_repeats" in set(findings["code"])
 
 
 def test_unknown_top_level_key_is_rejected(workdir):

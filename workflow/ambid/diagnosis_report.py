@@ -188,7 +188,7 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
     return out
 
 
-def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
+def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repeated_steps=None):
     """The candidates table (with where each helps) and the diagnosis in Markdown.
 
     Parameters
@@ -201,6 +201,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
     bands_hz : sequence or None
         Band edges of `ambid.compare.summarize` (None: from the measured grid).
     title : str
+    shown : int
+        Candidates in the page's table.
+    repeated_steps : int, optional
+        Steps of the run repeated at a lower amplitude (the FRF's metadata); with none, a lead is said to be
+        possibly the describing function's amplitude bias (`ambid.amplitude`).
 
     Returns
     -------
@@ -234,7 +239,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8):
         lines += [f"A lead, not a finding: the data favour `{lead.candidate.label}` ({values}; BIC evidence "
                   f"{lead.evidence:.4g}, most on {where['channels']}, {where['band']} band), but the misfit it would remove "
                   f"lies within the floor{' of the model retuned below' if diagnosis.verdict == 'retune' else ''}. Whether "
-                  "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts.", ""]
+                  "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts."
+                  + (" This run has no step repeated at a lower amplitude, so its FRF is the describing function at "
+                     "the excitation amplitude: the lead may be the force law's amplitude-dependent error (it reads "
+                     "most like the bearings' coefficients) rather than the machine." if repeated_steps == 0 else ""),
+                  ""]
     if diagnosis.sequence:
         new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
         parts = []

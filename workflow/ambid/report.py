@@ -469,7 +469,11 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 f"Floor of run `{run}` (the uncertainty beyond the noise that every chi-square divides by): "
                 + "; ".join(f"{family} {', '.join(sorted(set(part['method'])))}"
                             for family, part in floors.groupby("family", sort=False))
-                + (f"; each step's noise pooled over {pooled} steps" if pooled > 1 else "") + "."))
+                + (f"; each step's noise pooled over {pooled} steps" if pooled > 1 else "")
+                + ("; no step repeated at a lower amplitude, so the FRF is the describing function at the excitation "
+                   "amplitude, with the force law's amplitude-dependent error in it (see the run's findings)"
+                   if "no_repeats" in set(findings_frame(read_findings(root / base / "findings.tsv"))["code"]) else "")
+                + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
                 table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
                                                   "low-frequency compliance and coil-current ratio over the model's (a "

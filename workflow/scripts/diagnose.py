@@ -26,7 +26,8 @@ machine, truncation = with_enough_modes(machine, measured, "diagnose")
 diagnosis = diagnose(machine, measured, settings=settings)
 plant = Plant(machine)
 model = model_response(plant, measured)
-candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}")
+candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}",
+                                    repeated_steps=info["metadata"].get("repeated_steps"))
 write_tsv(candidates, snakemake.output.candidates)
 write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame(columns=list(JOINT_COLUMNS)),
           snakemake.output.joint)

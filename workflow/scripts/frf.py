@@ -26,6 +26,7 @@ if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no r
     for note in provenance["notes"]:
         log.info("%s: %s", source, note)
     table, floors = systematic_floor(table, {}, settings=floor_settings)
+    repeated_steps = 0  # FRFs carry no repeats
 else:
     frame, info = read_identification_log(snakemake.input.log)
     metadata = info["metadata"]
@@ -47,6 +48,7 @@ else:
     for finding in findings:
         log.warning("%s", finding.message)
     table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
+    repeated_steps = len(frame.loc[frame["level"] > 0, ["excited_axis", "step"]].drop_duplicates())
     if mimo is not None:
         condition = mimo[3]
         log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
@@ -68,13 +70,20 @@ for row in floors.itertuples():
                                 f"the scatter between neighbouring steps is {row.noise_scale:.2g} times the logged noise "
                                 "(the loop correlates the noise of U2 and of the outputs): the noise uses the scatter",
                                 row.noise_scale))
+if repeated_steps == 0:
+    findings.append(Finding("frf", "note", "no_repeats", "run",
+                            "no step was repeated at a lower amplitude (log column level; identification.repeat_ratio on "
+                            "the rig), so the FRF is the describing function at each step's excitation amplitude, not the "
+                            "plant at zero amplitude: the force law's amplitude-dependent error stays in it, inside the "
+                            "floor, and a diagnosis may show it as a lead on the bearings (actuator_coefficients, "
+                            "noncollocation). Repeat some steps at a lower amplitude to measure and remove it.", 0.0))
 write_findings(findings, snakemake.output.findings)
 estimators = sorted(set(table["estimator"]))
 write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
                                                         "std": "m/A (A/A: current)", "condition": "-",
                                                         "systematic_std": "m/A (A/A: current)"},
               kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                                    "source_log": source, "estimators": estimators})
+                                    "source_log": source, "estimators": estimators, "repeated_steps": repeated_steps})
 write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
