@@ -20,7 +20,7 @@ import yaml
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
 from ambid.diagnose import (Candidate, DiagnoseError, FreeParameter, candidate_space, diagnose, effect_label, joint_refit,
                             misfit, misfit_cells, misfit_peaks, plant_with_effects)
-from ambid.diagnosis_report import diagnosis_findings, diagnosis_report, effects_config_lines
+from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
 from ambid.experiment import hidden_effect_draws, hidden_effect_rig, identify_on_rig
@@ -344,8 +344,10 @@ def suite(identification):
             rig = hidden_effect_rig(machine_config, [hidden_entry(draws, n) for n in names], unmodelled=unmodelled)
             measured = measured_channels(identify_on_rig(rig, machine_config, identification, seed=seed))
             cases[key] = draws, diagnose(machine_from_config(machine_config), measured)
+            run.measured[key] = measured
         return cases[key]
 
+    run.measured = {}  # each case's measured channels, for the tests that also write its page
     return run
 
 
@@ -419,6 +421,17 @@ def test_physics_outside_the_library_is_not_named_at_a_bound(unmodelled, suite):
     assert not joint["at_bound"].any(), joint
     assert diagnosis.verdict in ("unexplained", "missing")
     assert not diagnosis.unexplained.empty, (diagnosis.table(), diagnosis.cells_after)
+    if unmodelled["name"] == "sensor_gain":
+        # a gain error on one sensor reads as the bearings' coefficients, as the describing function's amplitude error
+        # does: on a run without repeated steps the page says that part of it may be that error
+        alike = [f.candidate.label for f in diagnosis.sequence if f.candidate.effect in AMPLITUDE_ERROR_ALIKE]
+        assert alike, diagnosis.table()
+        plant = Plant(machine_from_config(small_grid("hs_eden_like")))
+        measured = suite.measured[("hs_eden_like", (), ("sensor_gain",), 7)]
+        _, page = diagnosis_report(diagnosis, plant, measured, None, "sensor gain", repeated_steps=0)
+        assert f"part of what `{alike[0]}`" in page and "describing function" in page
+        _, page = diagnosis_report(diagnosis, plant, measured, None, "sensor gain", repeated_steps=40)
+        assert "describing function" not in page
 
 
 def test_correlation_time_of_white_and_smooth_residuals():

@@ -188,6 +188,19 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
     return out
 
 
+#: Effects the describing function's amplitude-dependent error reads like (stop 30: the leads of centred rigs without
+#: zero amplitude), on a run without repeated steps to remove it.
+AMPLITUDE_ERROR_ALIKE = ("actuator_coefficients", "noncollocation")
+
+
+def _describing_function(subject):
+    """The caveat of a diagnosis on a run without repeated steps, about ``subject``."""
+    return (f"This run has no step repeated at a lower amplitude, so its FRF is the describing function at the "
+            f"excitation amplitude: {subject} may be the force law's amplitude-dependent error (it reads most like the "
+            "bearings' coefficients) rather than the machine. Repeat some steps at a lower amplitude, or run a "
+            "multisine, to tell them apart.")
+
+
 def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repeated_steps=None):
     """The candidates table (with where each helps) and the diagnosis in Markdown.
 
@@ -204,8 +217,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     shown : int
         Candidates in the page's table.
     repeated_steps : int, optional
-        Steps of the run repeated at a lower amplitude (the FRF's metadata); with none, a lead is said to be
-        possibly the describing function's amplitude bias (`ambid.amplitude`).
+        Steps of the run repeated at a lower amplitude (the FRF's metadata); with none, a lead, or a chosen effect of
+        `AMPLITUDE_ERROR_ALIKE`, is said to be possibly the describing function's amplitude error (`ambid.amplitude`).
 
     Returns
     -------
@@ -240,10 +253,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   f"{lead.evidence:.4g}, most on {where['channels']}, {where['band']} band), but the misfit it would remove "
                   f"lies within the floor{' of the model retuned below' if diagnosis.verdict == 'retune' else ''}. Whether "
                   "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts."
-                  + (" This run has no step repeated at a lower amplitude, so its FRF is the describing function at "
-                     "the excitation amplitude: the lead may be the force law's amplitude-dependent error (it reads "
-                     "most like the bearings' coefficients) rather than the machine." if repeated_steps == 0 else ""),
-                  ""]
+                  + (" " + _describing_function("the lead") if repeated_steps == 0 else ""), ""]
     if diagnosis.sequence:
         new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
         parts = []
@@ -262,6 +272,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             lines += [f"The data in the measured band cannot tell `{first.candidate.label}` from: "
                       f"{', '.join(first.indistinguishable)} (BIC evidence within {INDISTINGUISHABLE_BIC:g}); either explains "
                       "the measurement.", ""]
+        alike = [f.candidate.label for f in diagnosis.sequence if f.candidate.effect in AMPLITUDE_ERROR_ALIKE]
+        if repeated_steps == 0 and alike:
+            names = " and ".join(f"`{a}`" for a in alike)
+            lines += [_describing_function(f"part of what {names} {'takes' if len(alike) == 1 else 'take'} up"), ""]
     if diagnosis.retune is not None and not diagnosis.retune.empty:
         lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations):", ""]
         lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" + (_AT_BOUND if r.at_bound else "")
