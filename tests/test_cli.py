@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
@@ -128,6 +129,14 @@ class TestCheckLog:
         assert "noise: none logged; estimated from the scatter" in text and "V2 [um]: DX " in text
         assert "radial axes excited: DX, DY, NX: no MIMO estimate" in text
         assert "steps of DX, DY, NX, Z carry their own bearing's channels only" in text
+        assert "no step repeated at a lower amplitude (column level)" in text and "repeats:" not in text
+
+    def test_repeated_steps_are_counted(self, tmp_path):
+        frame = identification_frame(make_steps(axes=("DX", "Z"), n_steps=5))
+        repeats = frame[frame["step"].isin([0, 2])].assign(level=1)
+        pd.concat([frame.assign(level=0), repeats]).to_csv(tmp_path / "log.csv", index=False)
+        text = "\n".join(check_log(tmp_path / "log.csv"))
+        assert "repeats: 4 steps measured again at a lower amplitude" in text and "no step repeated" not in text
 
     def test_uff(self, tmp_path):
         write_uff58(tmp_path / "f.uff", frf_channels(frf_of(identification_frame(make_steps(axes=ALL_AXES, n_steps=5)))))

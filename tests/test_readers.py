@@ -25,17 +25,18 @@ def frame():
 
 
 def same_log(back, frame, rtol=1e-12):
-    back = back.sort_values(KEYS).reset_index(drop=True)
-    frame = frame.sort_values(KEYS).reset_index(drop=True)
-    pd.testing.assert_frame_equal(back[KEYS + ["frequency_hz"]], frame[KEYS + ["frequency_hz"]])
+    keys = KEYS + (["level"] if "level" in frame else [])
+    back = back.sort_values(keys).reset_index(drop=True)
+    frame = frame.sort_values(keys).reset_index(drop=True)
+    pd.testing.assert_frame_equal(back[keys + ["frequency_hz"]], frame[keys + ["frequency_hz"]], check_dtype=False)
     assert_allclose(back[["re", "im", "noise_std", "amplitude_a"]].to_numpy(), frame[["re", "im", "noise_std", "amplitude_a"]].to_numpy(),
                     rtol=rtol, atol=0)
 
 
 def wide(frame, position_suffix=""):
     """The log as one row per step and two (three) columns per channel; empty cells where a step lacks a channel."""
-    table = frame.pivot_table(index=["excited_axis", "step", "frequency_hz", "amplitude_a", "attempts"], columns="channel",
-                              values=["re", "im", "noise_std"], sort=False)
+    index = ["excited_axis", "step", "frequency_hz", "amplitude_a", "attempts"] + (["level"] if "level" in frame else [])
+    table = frame.pivot_table(index=index, columns="channel", values=["re", "im", "noise_std"], sort=False)
     out = table.index.to_frame(index=False)
     for channel in CHANNELS:
         if ("re", channel) not in table:
@@ -104,6 +105,24 @@ class TestTables:
         change(frame.copy()).to_csv(path, index=False)
         with pytest.raises(LogError, match=rf"^{tmp_path}/mine\.csv: {message}"):
             read_log(path)
+
+    def test_repeated_steps_in_both_layouts(self, frame, tmp_path):
+        """A column level carries steps measured again at a lower amplitude (what the floor and the zero-amplitude FRF
+        need), in either layout, with or without a step column: a repeat takes its step's number."""
+        repeats = frame[frame["step"].isin([0, 2])].assign(level=1, amplitude_a=lambda t: 0.5 * t["amplitude_a"],
+                                                           re=lambda t: 0.5 * t["re"], im=lambda t: 0.5 * t["im"])
+        logged = pd.concat([frame.assign(level=0), repeats], ignore_index=True)
+        logged.to_csv(tmp_path / "long.csv", index=False)
+        logged.drop(columns="step").to_csv(tmp_path / "unnumbered.csv", index=False)
+        wide(logged).to_csv(tmp_path / "wide.csv", index=False)
+        for name in ("long.csv", "unnumbered.csv", "wide.csv"):
+            back, _ = read_log(tmp_path / name)
+            same_log(back, logged)
+            assert len(back.loc[back["level"] == 1, ["excited_axis", "step"]].drop_duplicates()) == 2 * len(ALL_AXES)
+        logged.assign(level=logged["level"].astype(float).where(logged.index != 300, 1.5)).to_csv(tmp_path / "bad.csv",
+                                                                                                  index=False)
+        with pytest.raises(LogError, match=r"bad\.csv: row 301: level 1\.5 is not a whole number >= 0"):
+            read_log(tmp_path / "bad.csv")
 
     def test_bad_units_and_files(self, frame, tmp_path):
         wide(frame, position_suffix="_um").to_csv(tmp_path / "wide.csv", index=False)

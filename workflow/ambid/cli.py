@@ -227,6 +227,14 @@ def _summary_of_log(frame, provenance):
         warnings.append("the radial axes are on different frequency grids: no MIMO estimate")
     if "Z" not in grids:
         warnings.append("Z not excited: no axial FRF")
+    level = frame["level"].to_numpy() if "level" in frame.columns else np.zeros(len(frame))
+    repeated = frame.loc[level > 0, ["excited_axis", "step"]].drop_duplicates()
+    if len(repeated):
+        lines.append(f"repeats: {len(repeated)} steps measured again at a lower amplitude (level > 0): the FRF stage "
+                     "measures the amplitude dependence from them and takes the FRF to zero amplitude")
+    else:
+        warnings.append("no step repeated at a lower amplitude (column level): the FRF will be the describing function "
+                        "at each step's excitation amplitude, the force law's amplitude-dependent error in it")
     partial = [a for a in grids if frame.loc[frame["excited_axis"] == a, "channel"].nunique() < len(CHANNELS)]
     if partial:
         warnings.append(f"steps of {', '.join(partial)} carry their own bearing's channels only: no FRF across bearings "

@@ -16,10 +16,12 @@ Formats (`FORMATS`, told from the file name by `detect_format`):
     ``excited_axis, frequency_hz, channel, re, im`` and optionally ``step``
     (default: the rank of the frequency within the axis), ``amplitude_a``
     (default: the excited axis' ``|U2|``), ``noise_std`` (default 0: estimated
-    from the scatter by the FRF stage) and ``attempts`` (default 1);
+    from the scatter by the FRF stage), ``attempts`` (default 1) and ``level``
+    (default 0; 1, 2, ...: the step measured again at a lower amplitude, with
+    its step's number, `ambid.logs`);
 
-    *wide*, one row per (excited axis, step): ``excited_axis, frequency_hz``
-    and the optional ``step, amplitude_a, attempts``, then per channel
+    *wide*, one row per (excited axis, step, level): ``excited_axis, frequency_hz``
+    and the optional ``step, amplitude_a, attempts, level``, then per channel
     ``<channel>_re`` and ``<channel>_im`` and optionally
     ``<channel>_noise_std``.  A unit may end a channel column's name
     (``V2_DX_re_um``); an empty cell means the step does not carry that channel.
@@ -76,7 +78,7 @@ UFF_STD_WINDOW = 15
 
 _SUFFIXES = {".m": "m", ".mat": "mat", ".csv": "table", ".uff": "uff", ".unv": "uff"}
 _LONG_REQUIRED = ("excited_axis", "frequency_hz", "channel", "re", "im")
-_PER_STEP = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts")
+_PER_STEP = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts", "level")
 _WIDE_COLUMN = re.compile(rf"^({'|'.join(CHANNELS)})_(re|im|noise_std)(?:_(\w+))?$")
 
 
@@ -212,11 +214,19 @@ def _check_axes(axes, path):
 
 def _per_step_defaults(steps, path, notes):
     """Fill step and attempts where the table has none (in place); amplitude_a is filled per record (`_record`)."""
-    if "step" not in steps:
+    if "step" not in steps:  # a repeat (level > 0) is at its step's frequency, so it takes its number
         steps["step"] = steps.groupby("excited_axis")["frequency_hz"].rank(method="dense").astype(np.int64) - 1
         notes.append("no step column: steps numbered by increasing frequency within each excited axis")
     if "attempts" not in steps:
         steps["attempts"] = 1
+    if "level" not in steps:
+        steps["level"] = 0
+    level = steps["level"].to_numpy(dtype=float)
+    wrong = (level < 0) | (level != np.round(level))
+    if wrong.any():
+        row = int(np.flatnonzero(wrong)[0])
+        raise LogError(path, f"row {row + 1}: level {level[row]:g} is not a whole number >= 0 (0: the step; 1, 2, ...: "
+                             "the step measured again at a lower amplitude)")
     if "amplitude_a" not in steps:
         notes.append("no amplitude_a column: the excitation amplitude is taken as |U2| of the excited axis")
 
@@ -225,9 +235,9 @@ def _long_records(table, path, position_unit, current_unit):
     missing = [c for c in _LONG_REQUIRED if c not in table.columns]
     if missing:
         raise LogError(path, f"long layout (it has a channel column): missing column(s) {', '.join(missing)}; "
-                             f"it has {', '.join(_LONG_REQUIRED)} and optionally step, amplitude_a, noise_std, attempts")
+                             f"it has {', '.join(_LONG_REQUIRED)} and optionally step, amplitude_a, noise_std, attempts, level")
     notes = []
-    extra = [c for c in table.columns if c not in _LONG_REQUIRED + ("step", "amplitude_a", "noise_std", "attempts")]
+    extra = [c for c in table.columns if c not in _LONG_REQUIRED + ("step", "amplitude_a", "noise_std", "attempts", "level")]
     if extra:
         notes.append(f"column(s) not read: {', '.join(extra)}")
     table = table.copy()
@@ -238,7 +248,7 @@ def _long_records(table, path, position_unit, current_unit):
     if unknown.any():
         row = int(np.flatnonzero(unknown.to_numpy())[0])
         raise LogError(path, f"row {row + 1}: unknown channel {table['channel'].iat[row]!r}; known: {', '.join(CHANNELS)}")
-    for name in ("frequency_hz", "re", "im", "noise_std", "amplitude_a", "step", "attempts"):
+    for name in ("frequency_hz", "re", "im", "noise_std", "amplitude_a", "step", "attempts", "level"):
         if name in table:
             table[name] = _numeric(table, name, path)
     position = _unit_factor(position_unit or "m", POSITION_UNITS, path)
@@ -249,9 +259,9 @@ def _long_records(table, path, position_unit, current_unit):
     if "noise_std" not in table:
         notes.append("no noise_std column: noise estimated from the scatter between steps by the FRF stage")
     _per_step_defaults(table, path, notes)  # per row: the same for every row of a step
-    per_step = table[[c for c in _PER_STEP if c in table]].drop_duplicates(["excited_axis", "step"])
+    per_step = table[[c for c in _PER_STEP if c in table]].drop_duplicates(["excited_axis", "step", "level"])
     records = []
-    for (axis, step), rows in table.groupby(["excited_axis", "step"], sort=False):
+    for (axis, step, _), rows in table.groupby(["excited_axis", "step", "level"], sort=False):
         index = rows.index.to_numpy()
         first = rows.iloc[0]
         records.append(_record(axis, step, first, list(rows["channel"]), values[index], noise[index], per_step))
@@ -267,7 +277,7 @@ def _record(axis, step, first, channels, coefficients, noise, per_step):
         amplitude = float(np.abs(coefficients[u2[0]])) if u2 else np.nan
     return {"excited_axis": axis, "step": int(step), "frequency_hz": float(first["frequency_hz"]), "amplitude_a": amplitude,
             "attempts": int(first["attempts"]) if "attempts" in first and not pd.isna(first["attempts"]) else 1,
-            "channels": channels, "coefficients": coefficients, "noise_std": noise}
+            "level": int(first["level"]), "channels": channels, "coefficients": coefficients, "noise_std": noise}
 
 
 def _wide_records(table, path, position_unit, current_unit):
@@ -287,7 +297,7 @@ def _wide_records(table, path, position_unit, current_unit):
     table = table.copy()
     table["excited_axis"] = table["excited_axis"].astype(str).str.strip()
     _check_axes(table["excited_axis"], path)
-    for name in ("frequency_hz", "amplitude_a", "step", "attempts"):
+    for name in ("frequency_hz", "amplitude_a", "step", "attempts", "level"):
         if name in table:
             table[name] = _numeric(table, name, path)
     units_seen = set()
