@@ -26,7 +26,7 @@ import yaml
 
 from .errors import AmbidError, ConfigError
 from .io import atomic_path
-from .logs import CHANNELS, noise_from_scatter, write_identification_log
+from .logs import CHANNELS, noise_from_scatter, repeated_steps, write_identification_log
 from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .readers import FORMATS, POSITION_UNITS, detect_format, read_log, read_uff_frf
 
@@ -227,10 +227,9 @@ def _summary_of_log(frame, provenance):
         warnings.append("the radial axes are on different frequency grids: no MIMO estimate")
     if "Z" not in grids:
         warnings.append("Z not excited: no axial FRF")
-    level = frame["level"].to_numpy() if "level" in frame.columns else np.zeros(len(frame))
-    repeated = frame.loc[level > 0, ["excited_axis", "step"]].drop_duplicates()
-    if len(repeated):
-        lines.append(f"repeats: {len(repeated)} steps measured again at a lower amplitude (level > 0): the FRF stage "
+    repeated = repeated_steps(frame)
+    if repeated:
+        lines.append(f"repeats: {repeated} steps measured again at a lower amplitude (level > 0): the FRF stage "
                      "measures the amplitude dependence from them and takes the FRF to zero amplitude")
     else:
         warnings.append("no step repeated at a lower amplitude (column level): the FRF will be the describing function "

@@ -47,6 +47,7 @@ __all__ = [
     "AXIAL_CHANNELS",
     "axis_channels",
     "log_source",
+    "repeated_steps",
     "COLUMNS",
     "OPTIONAL_COLUMNS",
     "KIND",
@@ -137,6 +138,16 @@ def log_source(path, info):
     """
     original = ((info or {}).get("metadata") or {}).get("provenance", {}).get("file")
     return f"{original} (converted to {path})" if original and str(original) != str(path) else str(path)
+
+
+def repeated_steps(frame):
+    """How many steps of an identification log were measured again at a lower amplitude (``level`` > 0).
+
+    A log without a ``level`` column has none.
+    """
+    if "level" not in frame.columns:
+        return 0
+    return len(frame.loc[frame["level"] > 0, ["excited_axis", "step"]].drop_duplicates())
 
 
 def identification_frame(steps):

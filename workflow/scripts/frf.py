@@ -8,7 +8,7 @@ from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
 from ambid.frf import channel, frf_from_log, log_arrays
 from ambid.io import rule_log, write_parquet, write_tsv
-from ambid.logs import log_source, noise_from_scatter, read_identification_log
+from ambid.logs import log_source, noise_from_scatter, read_identification_log, repeated_steps
 from ambid.machine import RADIAL_AXES
 from ambid.plausibility import FRF_SETTINGS, check_log
 from ambid.plots import bode_measured, save_figure
@@ -26,7 +26,7 @@ if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no r
     for note in provenance["notes"]:
         log.info("%s: %s", source, note)
     table, floors = systematic_floor(table, {}, settings=floor_settings)
-    repeated_steps = 0  # FRFs carry no repeats
+    repeated = 0  # FRFs carry no repeats
 else:
     frame, info = read_identification_log(snakemake.input.log)
     metadata = info["metadata"]
@@ -48,7 +48,7 @@ else:
     for finding in findings:
         log.warning("%s", finding.message)
     table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
-    repeated_steps = len(frame.loc[frame["level"] > 0, ["excited_axis", "step"]].drop_duplicates())
+    repeated = repeated_steps(frame)
     if mimo is not None:
         condition = mimo[3]
         log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
@@ -70,7 +70,7 @@ for row in floors.itertuples():
                                 f"the scatter between neighbouring steps is {row.noise_scale:.2g} times the logged noise "
                                 "(the loop correlates the noise of U2 and of the outputs): the noise uses the scatter",
                                 row.noise_scale))
-if repeated_steps == 0:
+if repeated == 0:
     findings.append(Finding("frf", "note", "no_repeats", "run",
                             "no step was repeated at a lower amplitude (log column level; identification.repeat_ratio on "
                             "the rig), so the FRF is the describing function at each step's excitation amplitude, not the "
@@ -84,7 +84,7 @@ write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m
                                                         "std": "m/A (A/A: current)", "condition": "-",
                                                         "systematic_std": "m/A (A/A: current)"},
               kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                                    "source_log": source, "estimators": estimators, "repeated_steps": repeated_steps})
+                                    "source_log": source, "estimators": estimators, "repeated_steps": repeated})
 write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
