@@ -30,7 +30,14 @@ fitted delay and the default fit's verdict (`ambid.channel_fit.fit_verdict`), an
 relative misfit ``|G_fit / G - 1|`` [%] for information.  Target: the default is not worse than the
 thesis' 4/6 on any channel by chi2/dof.
 
-Usage: ``.venv/bin/python benchmarks/bench_fit.py [seeds]``.
+Third part (issue 19's wider band), the rig's exact sampled FRF from 2 Hz to 3 kHz (300 points, geometric;
+hs_eden_like shows 3 modes there, demo20 3), every same-plane channel, 1 % and 3 % noise, the default estimator
+with the fit rule's hints: the share of the truth's in-band modes found (a resonance within 0.5 %; a mode a
+channel's own zero nearly cancels counts as missed), chi2/dof median and p90 (about 1 for a right model), the
+share of fits flagged by `ambid.channel_fit.fit_verdict`, time per channel.  No target: a measure of what the
+fit gives the update and the multisine zoom over the band they now use.
+
+Usage: ``.venv/bin/python benchmarks/bench_fit.py [seeds] [wide-band seeds]``.
 """
 
 import sys
@@ -214,13 +221,51 @@ def default_runs():
           "error, the default the error in units of the noise, which is largest relative to |G| at the anti-resonances)")
 
 
+def wide_band(machine, seeds):
+    """Third part: every same-plane channel of the rig's exact sampled FRF, 2 Hz to 3 kHz."""
+    from ambid.channel_fit import fit_verdict, real_zero_hz, select_channels
+
+    machine_config, rig_config = load(machine)
+    rig_model = RigModel(rig_from_config(rig_config, machine_config))
+    plant = Plant(machine_from_config(machine_config))
+    hint = rigid_pole_hz(plant)
+    f = np.geomspace(2.0, 3000.0, 300)
+    measured = rig_model.sampled_frequency_response(f)
+    poles, _ = rig_model.plant.poles()
+    flexible = poles[(poles.imag > 1e-6 * np.abs(poles)) & (np.abs(poles) < 2 * np.pi * f.max())]
+    truth_hz = np.unique(np.round(np.abs(flexible) / (2 * np.pi), 6))
+    print(f"\n== {machine}, 2 Hz - 3 kHz: the truth's modes {np.round(truth_hz, 1)} Hz; default estimator")
+    print(f"{'noise':>5s} {'fits':>5s} {'modes found':>11s} {'chi2/dof median':>15s} {'p90':>8s} {'flagged':>7s} {'ms/ch':>6s}")
+    for noise in (0.01, 0.03):
+        found, costs, flagged, elapsed = [], [], 0, []
+        for output, input_axis in select_channels("same_plane"):
+            g0 = measured[:, RADIAL_AXES.index(output), RADIAL_AXES.index(input_axis)]
+            known = known_response(plant, output, input_axis, f)
+            zeros = real_zero_hz(plant, output, input_axis, f.max())
+            for seed in range(seeds):
+                rng = np.random.default_rng(seed)
+                g = g0 * (1 + noise * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)) / np.sqrt(2))
+                t0 = time.perf_counter()
+                fit = fit_channel(f, g, std=noise * np.abs(g0), known=known, rigid_hint_hz=hint, zero_hint_hz=zeros)
+                elapsed.append(time.perf_counter() - t0)
+                resonances = np.array([r["frequency_hz"] for r in fit.features if r["kind"] == "resonance"])
+                found += [bool(resonances.size and np.min(np.abs(resonances / t - 1)) < 5e-3) for t in truth_hz]
+                costs.append(fit.cost)
+                flagged += fit_verdict(fit, f, g, known, f"{output}/{input_axis}")[0] != ""
+        print(f"{100 * noise:4.0f}% {len(costs):5d} {100 * np.mean(found):10.1f}% {np.median(costs):15.3g} "
+              f"{np.percentile(costs, 90):8.3g} {100 * flagged / len(costs):6.1f}% {1e3 * np.mean(elapsed):6.0f}")
+
+
 def main():
     seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 50
+    wide_seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 10
     print(f"bench_fit: {seeds} seeds per case; 'spur' = extra lightly damped in-band resonances per fit, 'unst' = unstable"
           " complex poles per fit, 'merged' = share of fits with fewer than two unstable rigid poles")
     for machine in ("hs_eden_like", "demo20"):
         run(machine, seeds)
     default_runs()
+    for machine in ("hs_eden_like", "demo20"):
+        wide_band(machine, wide_seeds)
 
 
 if __name__ == "__main__":
