@@ -100,13 +100,17 @@ def summary(values):
     return f"{100 * np.median(ok):8.4f} {100 * np.percentile(ok, 90):8.4f}"
 
 
-def run(machine, seeds):
+def on_the_rig(machine, frequency_hz):
+    """The rig, the nominal plant, its rigid-pole hint and the rig's exact sampled FRF on ``frequency_hz``."""
     machine_config, rig_config = load(machine)
     rig_model = RigModel(rig_from_config(rig_config, machine_config))
     plant = Plant(machine_from_config(machine_config))
-    hint = rigid_pole_hz(plant)
+    return rig_model, plant, rigid_pole_hz(plant), rig_model.sampled_frequency_response(frequency_hz)
+
+
+def run(machine, seeds):
     f = np.linspace(1.0, 750.0, 250)
-    measured = rig_model.sampled_frequency_response(f)
+    rig_model, plant, hint, measured = on_the_rig(machine, f)
     band = (f.min(), f.max())
     print(f"\n== {machine}: truth from the rig; default vs thesis; errors in %: median p90")
     print(f"{'channel':8s} {'noise':>5s} {'method':14s} {'res f':>17s} {'res zeta':>17s} {'anti f':>17s} {'anti zeta':>17s}"
@@ -225,12 +229,8 @@ def wide_band(machine, seeds):
     """Third part: every same-plane channel of the rig's exact sampled FRF, 2 Hz to 3 kHz."""
     from ambid.channel_fit import fit_verdict, real_zero_hz, select_channels
 
-    machine_config, rig_config = load(machine)
-    rig_model = RigModel(rig_from_config(rig_config, machine_config))
-    plant = Plant(machine_from_config(machine_config))
-    hint = rigid_pole_hz(plant)
     f = np.geomspace(2.0, 3000.0, 300)
-    measured = rig_model.sampled_frequency_response(f)
+    rig_model, plant, hint, measured = on_the_rig(machine, f)
     poles, _ = rig_model.plant.poles()
     flexible = poles[(poles.imag > 1e-6 * np.abs(poles)) & (np.abs(poles) < 2 * np.pi * f.max())]
     truth_hz = np.unique(np.round(np.abs(flexible) / (2 * np.pi), 6))

@@ -185,7 +185,8 @@ class TestVerdict:
         assert fit.delay_std_s == pytest.approx(0.17e-6, rel=0.05)
         within = replace(fit, model=replace(fit.model, delay_s=-2.9 * fit.delay_std_s))
         assert fit_verdict(within, F, g, None, "NX/NX")[0] == ""
-        assert fit_verdict(replace(within, delay_std_s=np.nan), F, g, None, "NX/NX")[0] == "negative_delay"
+        flag, findings = fit_verdict(replace(within, delay_std_s=np.nan), F, g, None, "NX/NX")
+        assert flag == "negative_delay" and "+-" not in findings[0].message
         rows = fit.features + [{"root": "pole", "kind": "resonance", "number": 2, "frequency_hz": 96.2,
                                 "damping_ratio": 0.57}]
         flag, findings = fit_verdict(replace(fit, features=rows), F, g, None, "DX/DX")

@@ -903,9 +903,10 @@ def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_
     elif negative_delay(model.delay_s, channel_fit.delay_std_s):
         flag = "negative_delay"
         findings.append(Finding("fit", "warning", "negative_delay", label,
-                                f"fitted delay {1e6 * model.delay_s:.4g} +- {1e6 * channel_fit.delay_std_s:.2g} us < 0: a "
-                                "non-causal fit, its structure compensates something it lacks; its features are not used "
-                                "by the model update", model.delay_s))
+                                f"fitted delay {1e6 * model.delay_s:.4g}"
+                                + (f" +- {1e6 * channel_fit.delay_std_s:.2g}" if np.isfinite(channel_fit.delay_std_s) else "")
+                                + " us < 0: a non-causal fit, its structure compensates something it lacks; its features "
+                                "are not used by the model update", model.delay_s))
     for row in channel_fit.features:
         if row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED:
             findings.append(Finding("fit", "warning", "overdamped", label,

@@ -55,7 +55,7 @@ class SecondOrderModel:
         """Structural FRF, array (n_freq, n_out, n_in).
 
         By modal superposition of the first-order form, ``C V (jw - Lambda)^-1 V^-1 B``
-        (one eigen-decomposition, then O(n) per frequency); by a batched linear solve
+        (one eigen-decomposition per block of `uncoupled_states`, then O(n) per frequency); by a batched linear solve
         of the dynamic stiffness when the eigenvectors are ill-conditioned (a
         nearly defective system).
         """
