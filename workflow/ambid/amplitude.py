@@ -47,7 +47,11 @@ import numpy as np
 
 from .floor import excitation_amplitude_squared, family_of, level_pairs
 
-__all__ = ["MEASURED_KAPPA", "amplitude_dependence", "zero_amplitude", "account_zero_amplitude"]
+__all__ = ["MEASURED_KAPPA", "AMPLITUDE_ERROR_ALIKE", "amplitude_dependence", "zero_amplitude", "account_zero_amplitude"]
+
+#: Library effects the describing function's amplitude-dependent error reads like (stop 30: the leads of centred rigs
+#: without zero amplitude): what a diagnosis of a run without repeated steps may name for it.
+AMPLITUDE_ERROR_ALIKE = ("actuator_coefficients", "noncollocation")
 
 #: A channel's amplitude dependence is measured where its pairs put it this many standard deviations from zero
 #: (`amplitude_dependence`).

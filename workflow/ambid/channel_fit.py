@@ -540,6 +540,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
         if mode_hz.size < modes:
             raise FitError(f"asked for {modes} flexible modes; the stabilization diagram shows {mode_hz.size}")
     noise_known = std is not None and np.all(np.asarray(std) > 0)
+    band = (f.min(), f.max())
     problem = (f, x, reduced, reduced_sigma, orders, omega, n_rigid, relative_noise, rigid_hint_hz, zero_hint_hz,
                noise_known, lowpass, delay, max_iterations)
     best, order, rigid_from_hint, notes = _fit_structure(problem, mode_hz)
@@ -551,7 +552,6 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
         # the information criterion prefers it
         seen = select_modes(diagram, min_orders=1)
         extra = np.array([m for m in seen if not np.any(np.abs(mode_hz / m - 1) < 0.01)])
-        band = (f.min(), f.max())
         for more in (_most_persistent(diagram, extra, min(2, extra.size)) if extra.size else []):
             alternative = np.sort(np.append(mode_hz, more))
             trial = _fit_structure(problem, alternative)
@@ -562,13 +562,13 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
                 notes = trial[3] + [f"structure: the diagram's {mode_hz.size} mode(s) and {more:.2f} Hz, seen at too "
                                     f"few orders to be selected (chi2/dof {_cost(trial[0]):.3g} against {_cost(best):.3g})"]
                 best, order, rigid_from_hint, mode_hz = trial[0], trial[1], trial[2], alternative
-    if modes is None and not _acceptable(best, omega, (f.min(), f.max())):
+    if modes is None and not _acceptable(best, omega, band):
         # the structure the diagram suggests fits badly, needs a negative delay or an overdamped "mode": the
         # same data with fewer modes and with the zeros beyond the band as residual flexibility
         for alternative, zero_band in _alternative_structures(diagram, mode_hz):
             trial = _fit_structure(problem, alternative, zero_band)
-            if _preferred(trial[0], best, omega, (f.min(), f.max()), noise_known):
-                why = ", ".join(_flaws(best, omega, (f.min(), f.max()))) or "a higher information criterion"
+            if _preferred(trial[0], best, omega, band, noise_known):
+                why = ", ".join(_flaws(best, omega, band)) or "a higher information criterion"
                 notes = trial[3] + [f"structure: {alternative.size} of the diagram's {mode_hz.size} mode(s)"
                                     + (", zeros beyond the band as residual flexibility" if zero_band < 1.5 else "")
                                     + f", preferred to a fit with {why} (chi2/dof {_cost(trial[0]):.3g} against "
@@ -581,7 +581,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
                        "(cancelled by real zeros)")
     model = _to_model(solution.x, layout, omega, sign)
     cost = _cost(best)
-    features = _features(model, best, omega, (f.min(), f.max()))
+    features = _features(model, best, omega, band)
     return ChannelFit(model, features, diagram, order, cost, int(solution.nfev), dropped, np.asarray(mode_hz),
                       _delay_std_s(best, omega))
 
@@ -599,10 +599,11 @@ def _fit_structure(problem, mode_hz, zero_band=1.5):
     # multisine channel, three modes at order 6, started without its rigid pairs and ended at chi2/dof 21 with a
     # rigid "pair" at 370 Hz and its third mode lost (1.13 and all three from order 10); yet demo20's DX/NX from
     # 2 Hz to 3 kHz fits from order 6 and takes a delay of -49 us from order 10.
+    band = (f.min(), f.max())
     room = 2 * n_rigid + 2 * len(mode_hz)
     best, tried = None, set()
     for lowest in (room, orders[0]):
-        if best is not None and _acceptable(best[0], omega, (f.min(), f.max())):
+        if best is not None and _acceptable(best[0], omega, band):
             break
         order, start = orders[-1], None
         for candidate in orders:
@@ -619,7 +620,7 @@ def _fit_structure(problem, mode_hz, zero_band=1.5):
         if start is None:
             start = sanathanan_koerner(f, reduced, order, order, std=reduced_sigma)
         result, rigid_from_hint, notes = _refine_start(problem, start, mode_hz, zero_band)
-        if best is None or _preferred(result, best[0], omega, (f.min(), f.max()), noise_known):
+        if best is None or _preferred(result, best[0], omega, band, noise_known):
             best = (result, order, rigid_from_hint, notes)
     return best
 

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from .amplitude import AMPLITUDE_ERROR_ALIKE
 from .compare import channel_errors, model_response, summarize
 from .diagnose import INDISTINGUISHABLE_BIC, effect_label, plant_with_effects
 from .effects import EFFECTS
@@ -186,11 +187,6 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
                            "misfit above the floor that no effect of the library explains: " + _cells_text(unexplained),
                            float(unexplained["chi2_per_point"].max())))
     return out
-
-
-#: Effects the describing function's amplitude-dependent error reads like (stop 30: the leads of centred rigs without
-#: zero amplitude), on a run without repeated steps to remove it.
-AMPLITUDE_ERROR_ALIKE = ("actuator_coefficients", "noncollocation")
 
 
 def _describing_function(subject):

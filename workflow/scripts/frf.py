@@ -3,6 +3,7 @@ findings, UFF58, Bode plots."""
 
 import numpy as np
 
+from ambid.amplitude import AMPLITUDE_ERROR_ALIKE
 from ambid.errors import LogError
 from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
@@ -75,9 +76,9 @@ if repeated == 0:
                             "no step was repeated at a lower amplitude (log column level; identification.repeat_ratio on "
                             "the rig), so the FRF is the describing function at each step's excitation amplitude, not the "
                             "plant at zero amplitude: the force law's amplitude-dependent error stays in it, inside the "
-                            "floor, and a diagnosis may read it as the bearings' coefficients (actuator_coefficients, "
-                            "noncollocation; as a lead or as missing). Repeat some steps at a lower amplitude to measure "
-                            "and remove it.", 0.0))
+                            f"floor, and a diagnosis may read it as the bearings' coefficients ({', '.join(AMPLITUDE_ERROR_ALIKE)}; "
+                            "as a lead or as missing). Repeat some steps at a lower amplitude to measure and remove it.",
+                            0.0))
 write_findings(findings, snakemake.output.findings)
 estimators = sorted(set(table["estimator"]))
 write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
