@@ -354,18 +354,32 @@ def summarize(errors, bands_hz=None):
         labels = band_labels(edges)
         index = np.clip(np.searchsorted(edges, frequency, side="right") - 1, 0, len(labels) - 1)
         band[rows] = np.asarray(labels, dtype=object)[index]
-    frame = errors.assign(band=band)
-
-    def row(group, output, input_axis, band):
-        chi2 = float(np.mean(group["normalized_error"] ** 2))
-        return {"output": output, "input": input_axis, "band": band, "points": len(group), "chi2": chi2,
-                "excess": max(chi2 - 1.0, 0.0),
-                "rms_magnitude_db": float(np.sqrt(np.mean(group["magnitude_error_db"] ** 2))),
-                "rms_phase_deg": float(np.sqrt(np.mean(group["phase_error_deg"] ** 2)))}
-
-    rows = []
-    for (output, input_axis), group in frame.groupby(["output", "input"], sort=False):
-        rows += [row(part, output, input_axis, band) for band, part in group.groupby("band", sort=False)]
-        rows.append(row(group, output, input_axis, "all"))
-    rows.append(row(frame, "all", "all", "all"))
-    return pd.DataFrame(rows)
+    outputs, inputs = errors["output"].to_numpy(dtype=object), errors["input"].to_numpy(dtype=object)
+    channel, channels = pd.factorize(pd.Series(list(zip(outputs, inputs)), dtype=object))
+    cell, cells = pd.factorize(pd.Series(list(zip(outputs, inputs, band)), dtype=object))
+    # each channel's bands in the order the grid meets them, then the channel over all bands (channels in the order of
+    # the errors), the overall row last; the means skip the points without a magnitude or phase error (no signal)
+    groups = [(cell, [key for key in cells]), (channel, [(*key, "all") for key in channels]),
+              (np.zeros(len(errors), dtype=int), [("all", "all", "all")])]
+    squares = {"chi2": errors["normalized_error"].to_numpy(dtype=float) ** 2,
+               "magnitude": errors["magnitude_error_db"].to_numpy(dtype=float) ** 2,
+               "phase": errors["phase_error_deg"].to_numpy(dtype=float) ** 2}
+    parts = []
+    for code, keys in groups:
+        part = pd.DataFrame(keys, columns=["output", "input", "band"])
+        part["points"] = np.bincount(code, minlength=len(keys))
+        for name, values in squares.items():
+            finite = np.isfinite(values)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                part[name] = (np.bincount(code, np.where(finite, values, 0.0), minlength=len(keys))
+                              / np.bincount(code, finite, minlength=len(keys)))
+        parts.append(part)
+    position = {key: k for k, key in enumerate(channels)}
+    parts[0]["position"], parts[1]["position"] = [position[key[:2]] for key in cells], np.arange(len(channels))
+    rows = pd.concat(parts[:2], ignore_index=True).sort_values("position", kind="stable").drop(columns="position")
+    rows = pd.concat([rows, parts[2]], ignore_index=True)
+    return pd.DataFrame({"output": rows["output"].astype(errors["output"].dtype),
+                         "input": rows["input"].astype(errors["input"].dtype), "band": rows["band"].astype(errors["output"].dtype),
+                         "points": rows["points"].astype(int), "chi2": rows["chi2"],
+                         "excess": np.maximum(rows["chi2"] - 1.0, 0.0),
+                         "rms_magnitude_db": np.sqrt(rows["magnitude"]), "rms_phase_deg": np.sqrt(rows["phase"])})

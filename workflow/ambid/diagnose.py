@@ -791,6 +791,7 @@ class Diagnosis:
     verdict: str = "nothing"
     retune: pd.DataFrame = None  # variant parameters the joint refit moves beyond their uncertainty
     base_at_floor: bool = False  # no cell of the model the candidates were fitted on is above the floor
+    base_residual: np.ndarray = None  # of the model the candidates were fitted on (each `FittedCandidate.residual` adds one)
     determined_std: float = DiagnoseSettings.determined_std
 
     @property
@@ -890,7 +891,7 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     fitted = [_fit(evaluator, c, (), settings.max_evaluations) for c in candidates]
     overdispersion = _rank(fitted, float(np.vdot(current, current).real), current, evaluator, settings)
     diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
-                          base_chi2=float(np.vdot(current, current).real), cells_before=cells_before,
+                          base_chi2=float(np.vdot(current, current).real), base_residual=current, cells_before=cells_before,
                           base_at_floor=not cells.above(cells.chi2(current), settings.floor_limit).any(),
                           determined_std=settings.determined_std)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen

@@ -17,7 +17,7 @@ import yaml
 
 from .amplitude import AMPLITUDE_ERROR_ALIKE
 from .compare import channel_errors, model_response, summarize
-from .diagnose import INDISTINGUISHABLE_BIC, effect_label, plant_with_effects
+from .diagnose import INDISTINGUISHABLE_BIC, effect_label
 from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
@@ -197,6 +197,19 @@ def _describing_function(subject):
             "multisine, to tell them apart.")
 
 
+def _residual_errors(measured, residual):
+    """A diagnosis residual (`ambid.diagnose`: one complex point per measured point, channel after channel) in the
+    layout of `ambid.compare.channel_errors`, normalized errors only, for `ambid.compare.summarize`."""
+    lengths = [len(frequency) for frequency, _, _ in measured.values()]
+    if sum(lengths) != len(residual):
+        raise ValueError(f"a residual of {len(residual)} points for {sum(lengths)} measured points")
+    missing = np.full(len(residual), np.nan)
+    return pd.DataFrame({"output": np.repeat([output for output, _ in measured], lengths),
+                         "input": np.repeat([input_axis for _, input_axis in measured], lengths),
+                         "frequency_hz": np.concatenate([frequency for frequency, _, _ in measured.values()]),
+                         "magnitude_error_db": missing, "phase_error_deg": missing, "normalized_error": np.abs(residual)})
+
+
 def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repeated_steps=None):
     """The candidates table (with where each helps) and the diagnosis in Markdown.
 
@@ -225,8 +238,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     errors = channel_errors(measured, model)
     before = summarize(errors, bands_hz)
     table = diagnosis.table()
-    helps = [where_it_helps(before, summarize(channel_errors(measured, model_response(plant_with_effects(plant, [f.effect]), measured)),
-                                              bands_hz)) for f in diagnosis.ranked]
+    # where each candidate helps: its fit's residual against that of the model it was fitted on (the variant, or the
+    # variant retuned), channel by channel and band by band
+    base = summarize(_residual_errors(measured, diagnosis.base_residual), bands_hz)
+    helps = [where_it_helps(base, summarize(_residual_errors(measured, f.residual), bands_hz)) for f in diagnosis.ranked]
     table["helps_channels"] = [h["channels"] for h in helps]
     table["helps_band"] = [h["band"] for h in helps]
     lines = [f"# Diagnosis: {title}", ""]
@@ -295,7 +310,9 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             lines.append(f"| {r.parameter} | {r.origin} | {r.start:.6g} | {format_value(r.value, r.std)} | {note} |")
         lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
                   ""]
-    lines += ["## Ranking against the model as it is", "",
+    retuned = diagnosis.base_chi2 is not None and diagnosis.base_chi2 < diagnosis.chi2
+    lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
+                                                 f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
               "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
     for fitted, row in zip(diagnosis.ranked[:shown], table.head(shown).itertuples()):
         if fitted.missing:

@@ -25,9 +25,40 @@ __all__ = ["bode_matrix", "bode_siso", "bode_measured", "stabilization_diagram",
 
 def save_figure(figure, path, dpi=120):
     """Save a figure atomically with reproducible (blank) metadata and close it."""
+    for axis in figure.axes:
+        _minor_log_grid(axis)
     with atomic_path(path) as temporary:
         figure.savefig(temporary, dpi=dpi, format="png", metadata={"Software": None})
     plt.close(figure)
+
+
+def _minor_log_grid(axis):
+    """Draw the minor grid of a log axis as one line collection instead of one tick per line.
+
+    Matplotlib builds every tick as three lines and two labels; the minor ticks of the log
+    frequency axes made up 40 % of a many-panel Bode figure's drawing time.  Where the minor
+    grid is on, its lines (at the positions and in the style the ticks would have) replace
+    the minor ticks; the major ticks, their labels and grid stay as they are.
+    """
+    for name, scale_axis, transform in (("x", axis.xaxis, axis.get_xaxis_transform()),
+                                        ("y", axis.yaxis, axis.get_yaxis_transform())):
+        style = scale_axis._minor_tick_kw  # the keywords `Axes.grid` and `tick_params` left for minor ticks
+        if scale_axis.get_scale() != "log" or not style.get("gridOn", False):
+            continue
+        low, high = sorted(getattr(axis, f"get_{name}lim")())
+        positions = np.asarray(scale_axis.get_minor_locator().tick_values(low, high), dtype=float)
+        positions = positions[(positions >= low) & (positions <= high)]
+        ends = np.column_stack([positions, np.zeros_like(positions), positions, np.ones_like(positions)])
+        segments = ends.reshape(-1, 2, 2) if name == "x" else ends.reshape(-1, 2, 2)[:, :, ::-1]
+        grid = {key[len("grid_"):]: value for key, value in style.items() if key.startswith("grid_")}
+        lines = matplotlib.collections.LineCollection(
+            segments, transform=transform, zorder=grid.pop("zorder", matplotlib.lines.Line2D.zorder - 0.01),
+            colors=grid.pop("color", matplotlib.rcParams["grid.color"]),
+            linewidths=grid.pop("linewidth", matplotlib.rcParams["grid.linewidth"]),
+            linestyles=grid.pop("linestyle", matplotlib.rcParams["grid.linestyle"]),
+            alpha=grid.pop("alpha", matplotlib.rcParams["grid.alpha"]))
+        axis.add_collection(lines, autolim=False)
+        scale_axis.set_minor_locator(matplotlib.ticker.NullLocator())
 
 
 def db(values):
