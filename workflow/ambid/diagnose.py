@@ -91,7 +91,8 @@ class DiagnoseSettings:
         Relative standard deviation below which a parameter counts as determined.
     prior_width : float
         Joint refit: standard deviation of the prior on the variant's own parameters, in their search
-        coordinates (1: a factor e on log-scaled parameters).
+        coordinates (1: a factor e on log-scaled parameters), against the data deflated by the misfit
+        left (chi2 per point, at least 1).
     """
 
     max_evaluations: int = 240
@@ -630,7 +631,10 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     settings : DiagnoseSettings
         ``prior_width``: the prior on the variant's own parameters (in search
         coordinates), which keeps what the data do not determine where the
-        variant has it; ``determined_std``; ``max_evaluations``.
+        variant has it; it weighs against the data deflated by the misfit left
+        at each outer step (as `_covariance` deflates their information), so a
+        model far above the floor does not move its own parameters to stand in
+        for an effect it lacks; ``determined_std``; ``max_evaluations``.
     refit_variant : bool
         Free the variant's own effects (amplifier bandwidths, the update's moduli, ...): along the directions
         of their parameter space the data determine (right singular vectors of their Jacobian with a standard
@@ -689,8 +693,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             r = np.full(points, 1e3)
         return np.concatenate([r.real, r.imag])
 
-    def residual(x):
-        return np.concatenate([data(x), prior_scale * (x - x0)[prior]])
+    def residual(x, weight=prior_scale):
+        return np.concatenate([data(x), weight * (x - x0)[prior]])
 
     # the variant's own parameters move only along the directions the data determine (truncated SVD, as model updating
     # regularizes), found afresh at each outer step since the problem is nonlinear: an update's fourteen moduli of which
@@ -700,8 +704,13 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     own_columns, new_columns = np.flatnonzero(prior), np.flatnonzero(~prior)
     lower_inside, upper_inside = lower + 1e-9 * span, upper - 1e-9 * span
     x, at_x = begin, data(begin)
-    objective = float(np.sum(at_x**2) + np.sum((prior_scale * (x - x0)[prior]) ** 2))
     for _ in range(4):
+        # the prior weighs against the data as deflated by the misfit left (the overdispersion, as `_covariance` deflates
+        # their information), found afresh at each outer step as the misfit falls: far above the floor, the model's own
+        # error, not the data, would otherwise move the variant's parameters anywhere (ms01's updated variant: moduli to
+        # 25 times their value, standing in for a missing delay)
+        weight = prior_scale * np.sqrt(max(1.0, float(np.sum(at_x**2)) / points))
+        objective = float(np.sum(at_x**2) + np.sum((weight * (x - x0)[prior]) ** 2))
         basis = np.zeros((own_columns.size, 0))
         if own_columns.size:
             _, singular, directions = np.linalg.svd(_forward_jacobian(data, x, at_x, own_columns, lower, upper),
@@ -720,7 +729,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             return out
 
         solution = scipy.optimize.least_squares(
-            lambda z: residual(expand(z)), np.concatenate([np.zeros(basis.shape[1]), x[new_columns]]),
+            lambda z: residual(expand(z), weight), np.concatenate([np.zeros(basis.shape[1]), x[new_columns]]),
             bounds=(np.concatenate([np.full(basis.shape[1], -np.inf), lower[new_columns]]),
                     np.concatenate([np.full(basis.shape[1], np.inf), upper[new_columns]])),
             x_scale=np.concatenate([np.ones(basis.shape[1]), np.minimum(span[new_columns] / 10, 1.0)]),
