@@ -148,6 +148,7 @@ def test_joint_refit_keeps_what_the_data_do_not_determine(demo):
     joint = joint_refit(model, low)
     row = joint.table.set_index("parameter").loc["modal_damping.damping_ratio"]
     assert not row["determined"] and row["relative_std"] > 0.3
+    assert row["data_relative_std"] >= row["relative_std"]  # "determined" asks the data alone, without the prior
     assert abs(np.log(row["value"] / 0.01)) < 2 * row["relative_std"]
 
 
@@ -448,3 +449,22 @@ def test_correlation_time_of_white_and_smooth_residuals():
         smooth[k] = 0.8 * smooth[k - 1] + white[k]
     assert correlation_time(smooth) == pytest.approx(9.0, rel=0.1)
     assert correlation_time(np.zeros(5)) == 1.0
+
+
+def test_what_the_data_alone_determine():
+    """The data's own standard deviations: the covariance's without a prior where the data see every direction,
+    as large as the arithmetic allows for a parameter in a direction they do not see (a pseudo-inverse would give it
+    none)."""
+    from ambid.diagnose import _covariance, _data_standard_deviations
+
+    rng = np.random.default_rng(5)
+    jacobian = rng.standard_normal((400, 3))
+    full = _data_standard_deviations(jacobian, 400.0, 200, 3)
+    assert full == pytest.approx(np.sqrt(np.diag(_covariance(jacobian, 400.0, 200, 3))), rel=1e-9)
+    with_prior = np.sqrt(np.diag(_covariance(jacobian, 400.0, 200, 3, prior=np.array([0.0, 0.0, 1e5]))))
+    assert with_prior[2] < 0.1 * full[2]  # a prior holds what the data alone leave loose
+    blind = jacobian.copy()
+    blind[:, 2] = blind[:, 1]  # the data see only the sum of the last two
+    alone = _data_standard_deviations(blind, 400.0, 200, 3)
+    assert alone[0] == pytest.approx(full[0], rel=0.5) and min(alone[1:]) > 1e4 * max(full)
+    assert np.all(np.isfinite(np.diag(_covariance(blind, 400.0, 200, 3))))  # where the pseudo-inverse sees no problem

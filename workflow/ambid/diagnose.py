@@ -477,6 +477,12 @@ def correlation_time(residual):
     return (1 + rho) / (1 - rho)
 
 
+def _deflation(chi2, points, k, residual=None):
+    """The factor the data's information is divided by: the misfit left per degree of freedom (at least 1) times the
+    residual's `correlation_time` along frequency."""
+    return max(1.0, chi2 / max(points - k, 1)) * (1.0 if residual is None else correlation_time(residual))
+
+
 def _covariance(jacobian, chi2, points, k, prior=None, residual=None):
     """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
 
@@ -486,11 +492,22 @@ def _covariance(jacobian, chi2, points, k, prior=None, residual=None):
     ``residual``); ``prior`` is the diagonal precision a prior adds (in the
     residual's units, not deflated).
     """
-    deflation = max(1.0, chi2 / max(points - k, 1)) * (1.0 if residual is None else correlation_time(residual))
-    information = jacobian.T @ jacobian / deflation
+    information = jacobian.T @ jacobian / _deflation(chi2, points, k, residual)
     if prior is not None:
         information = information + np.diag(prior)
     return 0.5 * np.linalg.pinv(information)
+
+
+def _data_standard_deviations(jacobian, chi2, points, k, residual=None):
+    """Standard deviations in search coordinates from the data alone (`_covariance` without a prior).
+
+    A parameter with a share in a direction the data do not see gets a standard deviation as large
+    as the arithmetic allows (information eigenvalues floored at 1e-14 of the largest), where a
+    pseudo-inverse would give it none.
+    """
+    eigenvalues, vectors = np.linalg.eigh(jacobian.T @ jacobian / _deflation(chi2, points, k, residual))
+    floor = 1e-14 * max(float(eigenvalues.max(initial=0.0)), 1e-300)
+    return np.sqrt(0.5 * (vectors**2) @ (1.0 / np.maximum(eigenvalues, floor)))
 
 
 def _standard_deviations(free, x, jacobian, chi2, points, residual=None):
@@ -535,7 +552,8 @@ def _rank(fitted, chi2, residual, evaluator, settings):
 
 # ------------------------------------------------------------------------------------------ joint refit
 #: Columns of `JointFit.table`.
-JOINT_COLUMNS = ("parameter", "origin", "start", "value", "std", "relative_std", "determined", "at_bound")
+JOINT_COLUMNS = ("parameter", "origin", "start", "value", "std", "relative_std", "data_relative_std", "determined",
+                 "at_bound")
 
 
 @dataclass
@@ -544,7 +562,9 @@ class JointFit:
 
     ``table`` has one row per parameter: ``parameter`` (``effect[tag].name[index]``), ``origin``
     (``new``: chosen by this diagnosis; ``variant``: already in the model), ``start``, ``value``,
-    ``std``, ``relative_std``, ``determined``, ``at_bound``; ``correlation`` is their correlation
+    ``std``, ``relative_std`` (with the prior), ``data_relative_std`` (the data's alone: a variant's
+    parameter the prior holds has a small ``relative_std`` all the same), ``determined`` (by the
+    data: ``data_relative_std`` below ``determined_std``), ``at_bound``; ``correlation`` is their correlation
     matrix; ``effects`` the refitted new effects and ``machine`` the variant with every refitted value.
     """
 
@@ -751,6 +771,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     covariance = _covariance(jacobian, chi2, points, len(parameters),
                              prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted)
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
     k = 0
@@ -760,9 +781,11 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             value = p.from_search(x[k])
             std = float(std_search[k] * value) if p.log else float(std_search[k])
             relative = float(std_search[k]) if p.log else (abs(std / value) if value != 0 else np.inf)
+            data_relative = float(data_std_search[k]) if p.log else (abs(data_std_search[k] / value) if value != 0 else np.inf)
             rows.append({"parameter": f"{label}.{p.name}" + (f"[{p.index}]" if p.index is not None else ""),
                          "origin": origin, "start": p.from_search(x0[k]), "value": value, "std": std,
-                         "relative_std": relative, "determined": bool(relative < settings.determined_std),
+                         "relative_std": relative, "data_relative_std": data_relative,
+                         "determined": bool(data_relative < settings.determined_std),
                          "at_bound": bool(min(x[k] - lower[k], upper[k] - x[k]) <= AT_BOUND * span[k])})
             k += 1
     table = pd.DataFrame(rows, columns=list(JOINT_COLUMNS))

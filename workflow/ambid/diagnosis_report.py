@@ -163,7 +163,8 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
             elif not row.determined:
                 out.append(Finding(stage, "note", "undetermined", row.parameter,
                                    f"{row.parameter} is not determined by these data: {format_value(row.value, row.std)} "
-                                   f"({100 * row.relative_std:.0f} % relative)", row.relative_std))
+                                   f"({100 * row.relative_std:.0f} % relative with the prior, "
+                                   f"{100 * row.data_relative_std:.0f} % from the data alone)", row.data_relative_std))
     if diagnosis.retune is not None:
         for row in diagnosis.retune.itertuples():
             out.append(Finding(stage, "warning", "retune", row.parameter,
@@ -301,10 +302,12 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     if joint is not None and not joint.table.empty:
         lines += ["## Joint refit", "",
                   "Every chosen effect and the model's own parameters refitted together (the model's own under a prior of "
-                  "its configured values, so what the data do not determine stays put).", "",
+                  "its configured values, so what the data do not determine stays put; *determined* by the data alone: "
+                  "their relative standard deviation, without the prior, below "
+                  f"{diagnosis.determined_std:g}).", "",
                   "| parameter | origin | before | joint value +- std | determined |", "|---|---|---|---|---|"]
         for r in joint.table.itertuples():
-            note = "yes" if r.determined else "no"
+            note = "yes" if r.determined else f"no ({100 * r.data_relative_std:.0f} % from the data alone)"
             if r.at_bound:
                 note += ", at a bound"
             lines.append(f"| {r.parameter} | {r.origin} | {r.start:.6g} | {format_value(r.value, r.std)} | {note} |")
