@@ -8,6 +8,7 @@ import textwrap
 import matplotlib
 import matplotlib.collections
 import matplotlib.colors
+import matplotlib.lines
 import matplotlib.ticker
 
 matplotlib.use("Agg")
@@ -52,7 +53,8 @@ def _minor_log_grid(axis):
         segments = ends.reshape(-1, 2, 2) if name == "x" else ends.reshape(-1, 2, 2)[:, :, ::-1]
         grid = {key[len("grid_"):]: value for key, value in style.items() if key.startswith("grid_")}
         lines = matplotlib.collections.LineCollection(
-            segments, transform=transform, zorder=grid.pop("zorder", matplotlib.lines.Line2D.zorder - 0.01),
+            segments, transform=transform,
+            zorder={True: 0.5, "line": 1.5, False: 2.5}[axis.get_axisbelow()],  # where matplotlib puts gridlines
             colors=grid.pop("color", matplotlib.rcParams["grid.color"]),
             linewidths=grid.pop("linewidth", matplotlib.rcParams["grid.linewidth"]),
             linestyles=grid.pop("linestyle", matplotlib.rcParams["grid.linestyle"]),
