@@ -359,7 +359,7 @@ def summarize(errors, bands_hz=None):
     cell, cells = pd.factorize(pd.Series(list(zip(outputs, inputs, band)), dtype=object))
     # each channel's bands in the order the grid meets them, then the channel over all bands (channels in the order of
     # the errors), the overall row last; the means skip the points without a magnitude or phase error (no signal)
-    groups = [(cell, [key for key in cells]), (channel, [(*key, "all") for key in channels]),
+    groups = [(cell, list(cells)), (channel, [(*key, "all") for key in channels]),
               (np.zeros(len(errors), dtype=int), [("all", "all", "all")])]
     squares = {"chi2": errors["normalized_error"].to_numpy(dtype=float) ** 2,
                "magnitude": errors["magnitude_error_db"].to_numpy(dtype=float) ** 2,
