@@ -815,7 +815,6 @@ class Diagnosis:
     points: int  # complex points N
     overdispersion: float
     ranked: list
-    base_chi2: float = None  # of the model the candidates were fitted on (its own parameters refitted)
     sequence: list = field(default_factory=list)
     joint: JointFit | None = None
     cells_before: pd.DataFrame = None
@@ -834,9 +833,14 @@ class Diagnosis:
         return max(fitted.chi2 / self.points - 1.0, 0.0)
 
     @property
+    def base_chi2(self):
+        """Chi-square of the model the candidates were fitted on (its own parameters refitted first where that lowered it)."""
+        return self.chi2 if self.base_residual is None else float(np.vdot(self.base_residual, self.base_residual).real)
+
+    @property
     def base_excess(self):
         """Excess of the model the candidates were fitted on."""
-        return max((self.chi2 if self.base_chi2 is None else self.base_chi2) / self.points - 1.0, 0.0)
+        return max(self.base_chi2 / self.points - 1.0, 0.0)
 
     @property
     def best(self):
@@ -923,7 +927,7 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     fitted = [_fit(evaluator, c, (), settings.max_evaluations) for c in candidates]
     overdispersion = _rank(fitted, float(np.vdot(current, current).real), current, evaluator, settings)
     diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
-                          base_chi2=float(np.vdot(current, current).real), base_residual=current, cells_before=cells_before,
+                          base_residual=current, cells_before=cells_before,
                           base_at_floor=not cells.above(cells.chi2(current), settings.floor_limit).any(),
                           determined_std=settings.determined_std)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen

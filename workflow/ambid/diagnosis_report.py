@@ -313,7 +313,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             lines.append(f"| {r.parameter} | {r.origin} | {r.start:.6g} | {format_value(r.value, r.std)} | {note} |")
         lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
                   ""]
-    retuned = diagnosis.base_chi2 is not None and diagnosis.base_chi2 < diagnosis.chi2
+    retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
               "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
