@@ -17,7 +17,7 @@ rule acquire_identification:
         "logs/{machine}/acquire_identification_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("identification", "rig")) or "no_rig_runs",
-    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
+    priority: 4  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -51,7 +51,7 @@ rule acquire_multisine:
         "logs/{machine}/acquire_multisine_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine", "rig")) or "no_rig_runs",
-    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
+    priority: 4  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -83,7 +83,7 @@ rule acquire_calibration:
         "logs/{machine}/acquire_calibration_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in runs_of("calibration", "rig")) or "no_rig_runs",
-    priority: 2  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
+    priority: 4  # first: the head of the longest chain (measurement -> FRF -> fit -> update -> variants)
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -112,6 +112,7 @@ rule calibration_sensitivity:
         "logs/{machine}/calibration_sensitivity_{run}.log",
     benchmark:
         "logs/{machine}/calibration_sensitivity_{run}.benchmark.tsv"
+    priority: 1  # a long job that feeds only the report: not one left for the end
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

@@ -17,6 +17,7 @@ rule calibrate:
         "logs/{machine}/calibrate_{run}.log",
     benchmark:
         "logs/{machine}/calibrate_{run}.benchmark.tsv"
+    priority: 3  # before the comparisons: the operating point every model variant is linearized at
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

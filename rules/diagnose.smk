@@ -48,6 +48,7 @@ rule diagnose:
         "logs/{machine}/diagnose_{run}_{variant}.log",
     benchmark:
         "logs/{machine}/diagnose_{run}_{variant}.benchmark.tsv"
+    priority: diagnose_priority  # the longest jobs, before the comparisons and figures that fill the gaps
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

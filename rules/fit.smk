@@ -16,7 +16,7 @@ rule fit:
         "logs/{machine}/fit_{run}.log",
     benchmark:
         "logs/{machine}/fit_{run}.benchmark.tsv"
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

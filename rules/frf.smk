@@ -14,7 +14,7 @@ rule plausibility:
         "logs/{machine}/plausibility_{run}.log",
     benchmark:
         "logs/{machine}/plausibility_{run}.benchmark.tsv"
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -52,7 +52,7 @@ rule frf:
         "logs/{machine}/frf_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("stepped_sine")) or "no_stepped_sine_runs",
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -88,7 +88,7 @@ rule bla:
         "logs/{machine}/bla_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(run for _, run in identification_runs("multisine")) or "no_multisine_runs",
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1
@@ -148,7 +148,7 @@ rule import_log:
         "logs/{machine}/import_log_{run}.benchmark.tsv"
     wildcard_constraints:
         run="|".join(imported_runs()) or "no_imported_runs",
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

@@ -10,6 +10,7 @@ rule variant:
         "logs/{machine}/variant_{variant}.log",
     benchmark:
         "logs/{machine}/variant_{variant}.benchmark.tsv"
+    priority: 3  # before the comparisons: the machine file the diagnoses wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

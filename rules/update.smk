@@ -20,7 +20,7 @@ rule update:
         "logs/{machine}/update_{run}.log",
     benchmark:
         "logs/{machine}/update_{run}.benchmark.tsv"
-    priority: 1  # before the comparisons: the measurement chain the model variants wait for
+    priority: 3  # before the comparisons: the measurement chain the model variants wait for
     conda:
         "../workflow/envs/ambid.yaml"
     threads: 1

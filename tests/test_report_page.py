@@ -199,3 +199,26 @@ def test_a_lead_is_checked_against_the_other_runs(tmp_path):
     text = _lead_support(tmp_path, "ident01", ["ident01", "ms01"], "last")
     assert text.startswith("\n\nThe lead `foundation_mode` on the other runs of this variant: run `ms01` does not support it")
     assert _lead_support(tmp_path, "ms01", ["ident01", "ms01"], "last") == ""
+
+
+def test_minor_log_grid_is_drawn_once_per_line_where_it_is_on(tmp_path):
+    """`save_figure` draws the minor grid of a log axis as one line collection at the minor tick positions (2-9 of
+    each decade) in the grid's style, and leaves a linear axis and an axis without a minor grid alone."""
+    figure, (log_axis, plain_axis) = plt.subplots(2)
+    log_axis.semilogx([1.0, 1000.0], [0.0, 1.0])
+    log_axis.set_xlim(1.0, 1000.0)
+    log_axis.grid(True, which="both", color="0.8", linewidth=0.4)
+    plain_axis.semilogx([1.0, 1000.0], [0.0, 1.0])
+    plain_axis.grid(True, which="major")  # no minor grid asked for: the minor ticks stay matplotlib's
+    before = plain_axis.xaxis.get_minor_locator()
+    save_figure(figure, tmp_path / "grid.png", dpi=40)
+    grids = [c for c in log_axis.collections if isinstance(c, matplotlib.collections.LineCollection)]
+    assert len(grids) == 1
+    positions = sorted(segment[0, 0] for segment in grids[0].get_segments())
+    expected = sorted(m * 10.0**d for d in range(3) for m in range(2, 10))
+    assert positions == pytest.approx(expected)
+    assert matplotlib.colors.to_hex(grids[0].get_colors()[0]) == matplotlib.colors.to_hex("0.8")
+    assert grids[0].get_linewidths()[0] == pytest.approx(0.4)
+    assert isinstance(log_axis.xaxis.get_minor_locator(), matplotlib.ticker.NullLocator)  # no tick per line
+    assert not [c for c in plain_axis.collections if isinstance(c, matplotlib.collections.LineCollection)]
+    assert plain_axis.xaxis.get_minor_locator() is before

@@ -43,8 +43,10 @@ def _minor_log_grid(axis):
     """
     for name, scale_axis, transform in (("x", axis.xaxis, axis.get_xaxis_transform()),
                                         ("y", axis.yaxis, axis.get_yaxis_transform())):
-        style = scale_axis._minor_tick_kw  # the keywords `Axes.grid` and `tick_params` left for minor ticks
-        if scale_axis.get_scale() != "log" or not style.get("gridOn", False):
+        # the keywords `Axes.grid` and `tick_params` left for minor ticks (a private attribute: where a matplotlib
+        # release drops it, the minor ticks stay and draw the grid as before, only slower)
+        style = getattr(scale_axis, "_minor_tick_kw", None)
+        if scale_axis.get_scale() != "log" or not isinstance(style, dict) or not style.get("gridOn", False):
             continue
         low, high = sorted(getattr(axis, f"get_{name}lim")())
         positions = np.asarray(scale_axis.get_minor_locator().tick_values(low, high), dtype=float)
