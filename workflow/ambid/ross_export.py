@@ -14,13 +14,17 @@ def to_ross_rotor(rotor, bearings=()):
     ----------
     rotor : ambid.rotor.Rotor
         Must have no sleeves (ROSS has no equivalent).
-    bearings : sequence of (node, stiffness_n_per_m)
-        Linear isotropic bearings; none gives a free-free rotor.
+    bearings : sequence of (node, stiffness_n_per_m) or (node, kxx_n_per_m, kyy_n_per_m)
+        Linear undamped bearings (negative for an AMB's position stiffness);
+        none gives a free-free rotor.
 
     Notes
     -----
     Materials pass E, G and rho, so ROSS derives the same Poisson ratio
-    ``E / (2 G) - 1`` that ambid uses in the shear coefficient.
+    ``E / (2 G) - 1`` that ambid uses in the shear coefficient.  One ROSS
+    material per distinct (E, G, rho): an updated rotor's scaled elements
+    (`ambid.rotor.Rotor.with_youngs_modulus_scaled`) keep their material's
+    name with another modulus.
     """
     import ross
 
@@ -30,16 +34,17 @@ def to_ross_rotor(rotor, bearings=()):
     elements = []
     for element in rotor.elements:
         m = element.material
-        if m.name not in materials:
-            materials[m.name] = ross.Material(
-                name=f"ambid_{m.name}", rho=m.density_kg_m3, E=m.youngs_modulus_pa, G_s=m.shear_modulus
+        key = (m.name, float(m.density_kg_m3), float(m.youngs_modulus_pa), float(m.shear_modulus))
+        if key not in materials:
+            materials[key] = ross.Material(
+                name=f"ambid_{m.name}_{len(materials)}", rho=key[1], E=key[2], G_s=key[3]
             )
         elements.append(
             ross.ShaftElement(
                 L=element.length_m,
                 idl=element.inner_diameter_m,
                 odl=element.outer_diameter_m,
-                material=materials[m.name],
+                material=materials[key],
                 shear_effects=True,
                 rotary_inertia=True,
                 gyroscopic=True,
@@ -50,5 +55,7 @@ def to_ross_rotor(rotor, bearings=()):
         ross.DiskElement(n=d.node, m=d.mass_kg, Id=d.transverse_inertia_kg_m2, Ip=d.polar_inertia_kg_m2)
         for d in rotor.disks
     ]
-    bearing_elements = [ross.BearingElement(n=int(node), kxx=float(k), cxx=0.0) for node, k in bearings]
+    bearing_elements = [
+        ross.BearingElement(n=int(node), kxx=float(k[0]), kyy=float(k[-1]), cxx=0.0) for node, *k in bearings
+    ]
     return ross.Rotor(elements, disks, bearing_elements)
