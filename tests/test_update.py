@@ -64,7 +64,17 @@ class TestThesisDemonstration:
         rows, _, summary = identifiability(problem, result.values)
         assert summary["rank"] < 4  # ... but not every modulus is determined
         undetermined = [r for r in rows if not r["determined"]]
-        assert undetermined and all(np.isinf(r["std"]) for r in undetermined)
+        assert undetermined and all(np.isinf(r["std"]) for r in undetermined if r["resolution"] < 0.9)
+        # elements 7 and 8 are determined near this solution (resolution >= 0.9: 0.15 and 0.10 with 6 % and 3 %
+        # standard uncertainty), but only given where elements 5 and 6 were left: the truth, 0.21 and 0.095, lies on
+        # the same valley.  Moving element 6 by a factor e moves them by 75 % and 12 %: not determined either.
+        local, _, _ = identifiability(problem, result.values, valley=False)
+        conditional = [k for k, r in enumerate(local) if r["determined"]]
+        assert conditional and all(local[k]["std"] < 0.1 for k in conditional)
+        assert max(abs(np.log(result.values[k] * 200.0 / THESIS_MODULI_GPA[k])) for k in conditional) > 0.2
+        assert all(not rows[k]["determined"] and rows[k]["valley_shift"] > 0.1 and rows[k]["valley_variable"]
+                   for k in conditional)
+        assert summary["valley_probes"] > 0 and not any(r["determined"] for r in rows)
 
 
 def test_damping_and_group_moduli_recovered(hs_machine):

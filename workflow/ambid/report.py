@@ -303,6 +303,18 @@ def engineering_units(frame, metres=()):
     return out.rename(columns=renames)
 
 
+def _valley_text(variables):
+    """The variables the data fix only given where the undetermined moduli were left (`ambid.update.identifiability`)."""
+    if "valley_shift" not in variables:
+        return []
+    conditional = variables[(variables["resolution"] >= 0.9) & ~variables["determined"].astype(bool)]
+    if conditional.empty:
+        return []
+    return [Text("Determined near the solution but not beyond it: " + "; ".join(
+        f"{r.variable} moves by {100 * r.valley_shift:.0f} % when {r.valley_variable} is a factor e away, the features "
+        "matched as well" for r in conditional.itertuples()) + ". The data fix a combination of them, not each.")]
+
+
 def update_caveat(undetermined, total):
     """What an updated-model number is worth when the data leave update variables undetermined (text after it)."""
     if total == 0 or undetermined == 0:
@@ -526,8 +538,11 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Text(f"**{undetermined} of {len(variables)} update variables are not determined by the data**: their "
                      "updated values are not measurements (hatched in the figure below)." if undetermined else
                      f"All {len(variables)} update variables are determined by the data."),
+                *_valley_text(variables),
                 table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "
-                                               "resolution; `determined` is False where the data cannot fix a value."),
+                                               "resolution; `determined` is False where the data cannot fix a value, "
+                                               "`valley_shift` is how far a value moves when the undetermined modulus "
+                                               "`valley_variable` is a factor e away (the fit as good)."),
                 Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
                 Figure(root / base / "figures/youngs_modulus.png", caption("update_modulus", run=run)),
                 Figure(root / base / "figures/convergence.png", caption("update_convergence", run=run))]))

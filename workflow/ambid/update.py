@@ -65,6 +65,7 @@ class UpdateSettings:
     feature_std_floor: dict = field(default_factory=lambda: dict(frequency=5e-4, damping=0.05))
     determined_std: float = 0.1
     regularization: float = 5e-4
+    valley_step: float = 1.0
 
     @classmethod
     def from_config(cls, section, machine_section=None):
@@ -341,9 +342,10 @@ class UpdateResult:
     evaluations: int
 
 
-def least_squares_update(problem, start, max_evaluations=300):
+def least_squares_update(problem, start, max_evaluations=300, fixed=()):
     """Bounded least squares on the residuals with analytic Jacobian, from ``start``.
 
+    ``fixed``: indices of variables held at their ``start`` value (`identifiability`'s valley probes).
     Returns the design values found and the number of residual evaluations.
     """
     cache = {}
@@ -366,6 +368,11 @@ def least_squares_update(problem, start, max_evaluations=300):
     # start strictly inside the bounds (a damping ratio of 0 sits on its bound; trf crawls away from there)
     margin = 1e-3 * (upper - lower)
     theta0 = np.where(problem.log_scaled, theta0, np.clip(theta0, lower + margin, upper - margin))
+    fixed = np.asarray(fixed, dtype=int)
+    if fixed.size:  # held by bounds a rounding error wide (least_squares wants lower < upper)
+        pad = 1e-12 * np.maximum(1.0, np.abs(theta0[fixed]))
+        lower, upper = lower.copy(), upper.copy()
+        lower[fixed], upper[fixed] = theta0[fixed] - pad, theta0[fixed] + pad
     before = len(problem.history)
     # ftol 1e-4: once an iteration improves the cost by less than 0.01 %, what is left is the regularization
     # sliding undetermined variables along the valley; consistent data still converge quadratically to ~0
@@ -423,33 +430,64 @@ def update_model(problem, settings):
                         starts=summary, evaluations=int(summary["evaluations"].sum()))
 
 
-def identifiability(problem, values):
+def _feature_sigmas(problem):
+    """Standard uncertainty of each feature's frequency and damping: the fit's, floored at
+    ``settings.feature_std_floor`` of its value (the fit's statistical uncertainty does not cover systematic errors)."""
+    floor = problem.settings.feature_std_floor
+    sigma_f = np.fmax(problem.measured["frequency_std_hz"].to_numpy(float), floor["frequency"] * problem.frequency)
+    sigma_d = np.fmax(problem.measured["damping_std"].to_numpy(float), floor["damping"] * problem.damping)
+    return sigma_f, sigma_d
+
+
+def _feature_chi2(problem, values):
+    """Sum of the squared feature errors in units of `_feature_sigmas`."""
+    frequency, damping, _, _ = problem.predict(values)
+    sigma_f, sigma_d = _feature_sigmas(problem)
+    return float(np.sum(((frequency - problem.frequency) / sigma_f) ** 2) + np.sum(((damping - problem.damping) / sigma_d) ** 2))
+
+
+def identifiability(problem, values, valley=True):
     """Which design variables the measured features determine, and how well.
 
     The Jacobian of the features, each divided by its standard uncertainty
-    (the fit's, floored at ``settings.feature_std_floor`` of its value: the
-    fit's statistical uncertainty does not cover systematic errors), with
-    respect to the relative change of each variable, is decomposed by SVD.
-    Directions with a standard uncertainty below ``settings.determined_std``
-    are determined.
+    (`_feature_sigmas`), with respect to the relative change of each variable,
+    is decomposed by SVD.  Directions with a standard uncertainty below
+    ``settings.determined_std`` are determined.
+
+    That is a statement about the neighbourhood of ``values``.  Where the
+    features fix fewer combinations than there are moduli, the moduli the
+    data leave free sit anywhere along a curved valley, and a modulus that is
+    determined *given* them can move far when they move (demo20's thesis
+    case: element 6 "determined" at 0.16 of its modulus with a 5 % standard
+    uncertainty; the rig's truth is 0.40, on the same valley).  So, with
+    ``valley``, each undetermined modulus is set a factor
+    ``exp(settings.valley_step)`` above and below its value in turn and the
+    others are refitted (`least_squares_update` with it held); where the fit
+    stays as good (feature chi2 within 4 times the overdispersion), the
+    largest move of each determined modulus is its ``valley_shift``.
+    A modulus that moves by more than ``settings.determined_std`` is not
+    determined.
 
     Returns
     -------
     rows : list of dict
         Per variable: ``std`` (relative standard uncertainty within the
-        determined directions), ``resolution`` (diagonal of the resolution
-        matrix: 1 = fixed by the data, 0 = not seen at all), ``determined``
-        (resolution >= 0.9), ``at_bound``.
+        determined directions, with the valley shift added in quadrature;
+        inf where not determined), ``resolution`` (diagonal of the resolution
+        matrix: 1 = fixed by the data, 0 = not seen at all), ``valley_shift``
+        (relative move, see above; NaN where not probed) and
+        ``valley_variable`` (the modulus whose move caused it),
+        ``determined`` (resolution >= 0.9 and valley shift at most
+        ``settings.determined_std``), ``at_bound``.
     correlation : array (n, n)
         Correlation of the variables' estimates within the determined directions.
     summary : dict
-        ``rank`` (determined directions), ``singular_values``.
+        ``rank`` (determined directions), ``singular_values``, ``valley_probes``
+        (refits the valley check ran).
     """
     settings = problem.settings
     frequency, damping, d_frequency, d_damping = problem.predict(values, derivatives=True)
-    floor = settings.feature_std_floor
-    sigma_f = np.fmax(problem.measured["frequency_std_hz"].to_numpy(float), floor["frequency"] * problem.frequency)
-    sigma_d = np.fmax(problem.measured["damping_std"].to_numpy(float), floor["damping"] * problem.damping)
+    sigma_f, sigma_d = _feature_sigmas(problem)
     scale = np.maximum(np.abs(values), np.where(problem.log_scaled, 0.0, 1e-3))  # relative change of each variable
     jacobian = np.vstack([d_frequency / sigma_f[:, None], d_damping / sigma_d[:, None]]) * scale[None, :]
     _, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
@@ -461,9 +499,49 @@ def identifiability(problem, values):
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std, std)
     at_bound = (values <= problem.lower * (1 + 1e-6)) | (values >= problem.upper * (1 - 1e-6))
-    rows = [{"std": float(s) if r >= 0.9 else np.inf, "resolution": float(r), "determined": bool(r >= 0.9),
-             "at_bound": bool(b)} for s, r, b in zip(std, resolution, at_bound)]
-    return rows, correlation, {"rank": int(determined.sum()), "singular_values": singular}
+    locally = resolution >= 0.9
+    shift, moved_by, probes = np.full(len(values), np.nan), [""] * len(values), 0
+    if valley:
+        shift, moved_by, probes = _valley_shifts(problem, values, locally, jacobian.shape[0], int(determined.sum()))
+    # the valley's move counts as one standard deviation of what the undetermined moduli leave open
+    total = np.hypot(std, np.nan_to_num(shift))
+    rows = [{"std": float(s) if ok else np.inf, "resolution": float(r), "valley_shift": float(v), "valley_variable": by,
+             "determined": bool(ok and not v > settings.determined_std), "at_bound": bool(b)}
+            for s, r, v, by, ok, b in zip(total, resolution, shift, moved_by, locally, at_bound)]
+    return rows, correlation, {"rank": int(determined.sum()), "singular_values": singular, "valley_probes": probes}
+
+
+def _valley_shifts(problem, values, locally, residuals, rank):
+    """`identifiability`'s valley check: (largest relative move of each locally determined modulus, the modulus whose
+    move caused it, refits run)."""
+    settings = problem.settings
+    stiffness = problem.log_scaled
+    probed, free = np.flatnonzero(locally & stiffness), np.flatnonzero(~locally & stiffness)
+    shift = np.where(locally & stiffness, 0.0, np.nan)
+    moved_by = [""] * len(values)
+    if not probed.size or not free.size:
+        return shift, moved_by, 0
+    base = _feature_chi2(problem, values)
+    overdispersion = max(1.0, base / max(1, residuals - rank))
+    theta = problem.to_theta(values)
+    lower, upper = problem.to_theta(problem.lower), problem.to_theta(problem.upper)
+    probes = 0
+    history = len(problem.history)
+    for j in free:
+        for step in (settings.valley_step, -settings.valley_step):
+            moved = theta.copy()
+            moved[j] = np.clip(theta[j] + step, lower[j], upper[j])
+            if abs(moved[j] - theta[j]) < 0.5 * settings.valley_step:  # at a bound: no room to probe
+                continue
+            found, _ = least_squares_update(problem, problem.to_values(moved), settings.max_evaluations, fixed=[j])
+            probes += 1
+            if _feature_chi2(problem, found) > base + 4 * overdispersion:  # the data tell this point apart
+                continue
+            change = np.abs(problem.to_theta(found) - theta)
+            for k in probed[change[probed] > shift[probed]]:
+                shift[k], moved_by[k] = change[k], problem.variables[j].name
+    del problem.history[history:]  # the probes are not part of the update's history
+    return shift, moved_by, probes
 
 
 def comparison_rows(problem, original, updated):
