@@ -461,10 +461,13 @@ def identifiability(problem, values, valley=True):
     case: element 6 "determined" at 0.16 of its modulus with a 5 % standard
     uncertainty; the rig's truth is 0.40, on the same valley).  So, with
     ``valley``, each undetermined modulus is set a factor
-    ``exp(settings.valley_step)`` above and below its value in turn and the
+    ``exp(settings.valley_step)`` above and below its value in turn (half and
+    a quarter of that step where the data tell the point apart) and the
     others are refitted (`least_squares_update` with it held); where the fit
     stays as good (feature chi2 within 4 times the overdispersion), the
-    largest move of each determined modulus is its ``valley_shift``.
+    largest move of each determined modulus is its ``valley_shift`` (the
+    probes stop once every one has moved beyond ``determined_std``: then a
+    lower bound).
     A modulus that moves by more than ``settings.determined_std`` is not
     determined.
 
@@ -502,7 +505,7 @@ def identifiability(problem, values, valley=True):
     locally = resolution >= 0.9
     shift, moved_by, probes = np.full(len(values), np.nan), [""] * len(values), 0
     if valley:
-        shift, moved_by, probes = _valley_shifts(problem, values, locally, jacobian.shape[0], int(determined.sum()))
+        shift, moved_by, probes = _valley_shifts(problem, values, locally, jacobian.shape[0], basis @ basis.T)
     # the valley's move counts as one standard deviation of what the undetermined moduli leave open
     total = np.hypot(std, np.nan_to_num(shift))
     rows = [{"std": float(s) if ok else np.inf, "resolution": float(r), "valley_shift": float(v), "valley_variable": by,
@@ -511,12 +514,15 @@ def identifiability(problem, values, valley=True):
     return rows, correlation, {"rank": int(determined.sum()), "singular_values": singular, "valley_probes": probes}
 
 
-def _valley_shifts(problem, values, locally, residuals, rank):
+def _valley_shifts(problem, values, locally, residuals, resolution):
     """`identifiability`'s valley check: (largest relative move of each locally determined modulus, the modulus whose
-    move caused it, refits run)."""
+    move caused it, refits run).  ``resolution``: the resolution matrix; the undetermined moduli that leak most into
+    the determined ones are probed first."""
     settings = problem.settings
     stiffness = problem.log_scaled
+    rank = int(round(np.trace(resolution)))
     probed, free = np.flatnonzero(locally & stiffness), np.flatnonzero(~locally & stiffness)
+    free = free[np.argsort(-np.max(np.abs(resolution[np.ix_(probed, free)]), axis=0, initial=0.0))] if probed.size else free
     shift = np.where(locally & stiffness, 0.0, np.nan)
     moved_by = [""] * len(values)
     if not probed.size or not free.size:
@@ -528,18 +534,23 @@ def _valley_shifts(problem, values, locally, residuals, rank):
     probes = 0
     history = len(problem.history)
     for j in free:
-        for step in (settings.valley_step, -settings.valley_step):
-            moved = theta.copy()
-            moved[j] = np.clip(theta[j] + step, lower[j], upper[j])
-            if abs(moved[j] - theta[j]) < 0.5 * settings.valley_step:  # at a bound: no room to probe
-                continue
-            found, _ = least_squares_update(problem, problem.to_values(moved), settings.max_evaluations, fixed=[j])
-            probes += 1
-            if _feature_chi2(problem, found) > base + 4 * overdispersion:  # the data tell this point apart
-                continue
-            change = np.abs(problem.to_theta(found) - theta)
-            for k in probed[change[probed] > shift[probed]]:
-                shift[k], moved_by[k] = change[k], problem.variables[j].name
+        for sign in (1.0, -1.0):
+            # a factor e first; where the data tell that point apart, half and a quarter of it (a modulus of
+            # resolution 0.8 is undetermined, but the data do not let it move a factor e)
+            for step in sign * settings.valley_step * np.array([1.0, 0.5, 0.25]):
+                moved = theta.copy()
+                moved[j] = np.clip(theta[j] + step, lower[j], upper[j])
+                if abs(moved[j] - theta[j]) < 0.5 * abs(step):  # a bound in the way: a shorter step
+                    continue
+                found, _ = least_squares_update(problem, problem.to_values(moved), settings.max_evaluations, fixed=[j])
+                probes += 1
+                if _feature_chi2(problem, found) <= base + 4 * overdispersion:  # as good: on the valley
+                    change = np.abs(problem.to_theta(found) - theta)
+                    for k in probed[change[probed] > shift[probed]]:
+                        shift[k], moved_by[k] = change[k], problem.variables[j].name
+                    break
+        if np.all(shift[probed] > settings.determined_std):  # none is determined: more probes only raise the shifts
+            break
     del problem.history[history:]  # the probes are not part of the update's history
     return shift, moved_by, probes
 
