@@ -14,8 +14,8 @@ import pytest  # noqa: E402
 
 from ambid.diagnosis_report import lead_support, run_disagreements, share_text  # noqa: E402
 from ambid.plots import excess_maps, phase_deg, phase_near, save_figure  # noqa: E402
-from ambid.report import (Figure, Section, Table, Text, _lead_support, _run_disagreements, engineering_units,  # noqa: E402
-                          render_report, update_caveat, verdict_markdown)
+from ambid.report import (Figure, Section, Table, Text, _lead_support, _run_disagreements, _valley_text,  # noqa: E402
+                          engineering_units, render_report, update_caveat, verdict_markdown)
 
 
 class Page(HTMLParser):
@@ -222,3 +222,16 @@ def test_minor_log_grid_is_drawn_once_per_line_where_it_is_on(tmp_path):
     assert isinstance(log_axis.xaxis.get_minor_locator(), matplotlib.ticker.NullLocator)  # no tick per line
     assert not [c for c in plain_axis.collections if isinstance(c, matplotlib.collections.LineCollection)]
     assert plain_axis.xaxis.get_minor_locator() is before
+
+
+def test_the_update_section_names_what_is_determined_only_near_the_solution():
+    """A modulus of resolution >= 0.9 that the valley check undetermined is named with its factor and the modulus
+    that moved it; a determined one and one the data do not see are not; a table from before the check says nothing."""
+    variables = pd.DataFrame({"variable": ["E design[0]", "E design[1]", "E design[3]"], "resolution": [0.005, 0.97, 0.999],
+                              "valley_shift": [np.nan, 0.326, 0.069], "valley_variable": ["", "E design[2]", "E design[2]"],
+                              "determined": [False, False, True]})
+    (text,) = _valley_text(variables)
+    assert "E design[1] moves by a factor 1.39 when E design[2] is moved" in text.markdown
+    assert "E design[3]" not in text.markdown and "E design[0]" not in text.markdown
+    assert _valley_text(variables.drop(columns=["valley_shift", "valley_variable"])) == []
+    assert _valley_text(variables.assign(determined=[False, True, True])) == []

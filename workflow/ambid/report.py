@@ -311,8 +311,9 @@ def _valley_text(variables):
     if conditional.empty:
         return []
     return [Text("Determined near the solution but not beyond it: " + "; ".join(
-        f"{r.variable} moves by {100 * r.valley_shift:.0f} % when {r.valley_variable} is a factor e away, the features "
-        "matched as well" for r in conditional.itertuples()) + ". The data fix a combination of them, not each.")]
+        f"{r.variable} moves by a factor {np.exp(r.valley_shift):.2f} when {r.valley_variable} is moved (by up to a "
+        "factor e), the features matched as well" for r in conditional.itertuples()) +
+        ". The data fix a combination of them, not each.")]
 
 
 def update_caveat(undetermined, total):
@@ -541,8 +542,9 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 *_valley_text(variables),
                 table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "
                                                "resolution; `determined` is False where the data cannot fix a value, "
-                                               "`valley_shift` is how far a value moves when the undetermined modulus "
-                                               "`valley_variable` is a factor e away (the fit as good)."),
+                                               "`valley_shift` is how far a value moves (log of the factor) when the "
+                                               "undetermined modulus `valley_variable` is moved by up to a factor e "
+                                               "(the fit as good)."),
                 Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
                 Figure(root / base / "figures/youngs_modulus.png", caption("update_modulus", run=run)),
                 Figure(root / base / "figures/convergence.png", caption("update_convergence", run=run))]))

@@ -507,7 +507,7 @@ def identifiability(problem, values, valley=True):
     shift, moved_by, probes = np.full(len(values), np.nan), [""] * len(values), 0
     if valley:
         shift, moved_by, probes = _valley_shifts(problem, values, locally, jacobian.shape[0], basis @ basis.T)
-    # the valley's move counts as one standard deviation of what the undetermined moduli leave open
+    # the valley's move (a two-sigma one: conservative) added to the data's standard deviation
     total = np.hypot(std, np.nan_to_num(shift))
     rows = [{"std": float(s) if ok else np.inf, "resolution": float(r), "valley_shift": float(v), "valley_variable": by,
              "determined": bool(ok and not v > settings.determined_std), "at_bound": bool(b)}
