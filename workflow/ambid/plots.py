@@ -8,7 +8,6 @@ import textwrap
 import matplotlib
 import matplotlib.collections
 import matplotlib.colors
-import matplotlib.lines
 import matplotlib.ticker
 
 matplotlib.use("Agg")

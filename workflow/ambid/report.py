@@ -307,7 +307,8 @@ def _valley_text(variables):
     """The variables the data fix only given where the undetermined moduli were left (`ambid.update.identifiability`)."""
     if "valley_shift" not in variables:
         return []
-    conditional = variables[(variables["resolution"] >= 0.9) & ~variables["determined"].astype(bool)]
+    # probed (a valley shift) and yet undetermined: locally determined, moved beyond determined_std along the valley
+    conditional = variables[variables["valley_shift"].notna() & ~variables["determined"].astype(bool)]
     if conditional.empty:
         return []
     return [Text("Determined near the solution but not beyond it: " + "; ".join(
