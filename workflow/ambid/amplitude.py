@@ -19,7 +19,11 @@ amplitude changes from step to step.  Its noise adds to theirs, and the
 interpolation's own error, from the curvature the pairs show (each pair against
 the line through its neighbours, beyond their noise), becomes their systematic
 error: the interpolation cannot follow a coefficient that changes within a few
-steps, as it does at a lightly damped resonance.
+steps, as it does at a lightly damped resonance.  A resonance that peaks between
+two pairs is not seen by their curvature at all; there the coefficient grows with
+the amplification (`ambid.floor.resonance_ratio` ``r``: how far ``|G|`` stands above
+the pairs' line), and the interpolated one misses it by about ``|r - 1|`` times
+itself, which the systematic error adds.
 
 Where a channel's amplitude dependence is measured (its pairs' coefficients
 jointly `MEASURED_KAPPA` standard deviations away from zero: the positions near
@@ -45,7 +49,7 @@ over neighbouring steps (`ambid.floor.pooled_noise`).  This is beyond the thesis
 
 import numpy as np
 
-from .floor import excitation_amplitude_squared, family_of, level_pairs
+from .floor import excitation_amplitude_squared, family_of, level_pairs, resonance_ratio
 
 __all__ = ["MEASURED_KAPPA", "AMPLITUDE_ERROR_ALIKE", "amplitude_dependence", "zero_amplitude", "account_zero_amplitude"]
 
@@ -165,7 +169,9 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
         zero[repeated] = zero_repeated
         zero_noise = np.sqrt(noise[rows] ** 2 / np.abs(1 + k * a2) ** 2 + k_variance * a2**2 * np.abs(zero) ** 2)
         zero_noise[repeated] = np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2)
-        zero_systematic = k_error * a2 * np.abs(zero)
+        # a resonance between the pairs: the interpolated coefficient misses it by about |r - 1| times itself
+        ratio = resonance_ratio(frequency, np.abs(g_all), frequency[repeated])
+        zero_systematic = np.hypot(k_error, np.abs(k) * np.abs(ratio - 1)) * a2 * np.abs(zero)
         if amplitude_dependence(kappa, variance) > MEASURED_KAPPA:
             better = np.ones(rows.size, dtype=bool)
         else:
