@@ -324,7 +324,7 @@ def resonance_ratio(frequency_hz, magnitude, pair_frequency_hz):
     pair_frequency_hz = np.asarray(pair_frequency_hz, dtype=float)
     if pair_frequency_hz.size == 0:
         return np.ones(frequency_hz.size)
-    at = np.clip(np.searchsorted(frequency_hz, pair_frequency_hz), 0, frequency_hz.size - 1)
+    at = np.unique(np.clip(np.searchsorted(frequency_hz, pair_frequency_hz), 0, frequency_hz.size - 1))  # ascending
     tiny = np.finfo(float).tiny
     line = np.interp(np.log(frequency_hz), np.log(frequency_hz[at]), np.log(np.maximum(magnitude[at], tiny)))
     return np.maximum(magnitude, tiny) / np.exp(line)
