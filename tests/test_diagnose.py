@@ -400,12 +400,18 @@ def test_close_contenders_are_told_apart_by_the_joint_refit(identification):
              {"name": "sensor_lowpass", "parameters": {"cutoff_hz": 4241.277586591596}}]
     measured = measured_channels(identify_on_rig(hidden_effect_rig(machine_config, truth), machine_config, identification,
                                                  seed=2026))
-    diagnosis = diagnose(machine_from_config(machine_config), measured)
+    machine = machine_from_config(machine_config)
+    diagnosis = diagnose(machine, measured)
     assert [f.candidate.label for f in diagnosis.sequence] == ["modal_damping", "sensor_lowpass"], diagnosis.table()
     joint = diagnosis.joint.table.set_index("parameter")
     assert joint.loc["modal_damping.damping_ratio", "value"] == pytest.approx(0.01673890402966119, rel=0.01)
     assert joint.loc["sensor_lowpass.cutoff_hz", "value"] == pytest.approx(4241.277586591596, rel=0.01)
     assert not diagnosis.cells_after["above_floor"].any()
+    # the page says which contenders the joint refit told apart, with their chi2
+    contenders = dict(diagnosis.sequence[1].contenders)
+    assert "delay" in contenders and contenders["sensor_lowpass"] < contenders["delay"]
+    _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "contenders")
+    assert "`sensor_lowpass` was chosen over `delay`" in page
 
 
 def test_the_zero_amplitude_frf_gives_the_weak_foundation_its_mass(identification):

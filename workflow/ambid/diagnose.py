@@ -375,6 +375,7 @@ class FittedCandidate:
     missing: bool = False  # significant, material and inside its range
     indistinguishable: tuple = ()
     evaluations: int = 0
+    contenders: tuple = ()  # (label, chi2) of the close contenders `_choose` refitted jointly, this one among them
 
     @property
     def effect(self):
@@ -922,6 +923,7 @@ def _choose(machine, measured, chosen, ranking, settings, cells, joint):
         points = refits[0][1].residual.size
         overdispersion = max(1.0, min(j.chi2 for _, j in refits) / points)
         pick = min(refits, key=lambda fj: 2 * fj[1].chi2 / overdispersion + len(fj[0].candidate.free) * np.log(2 * points))[0]
+        pick.contenders = tuple((f.candidate.label, j.chi2) for f, j in refits)
     return pick, joint_refit(machine, measured, [*chosen, pick], settings, cells, initial=joint)
 
 

@@ -284,6 +284,13 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             lines += [f"The data in the measured band cannot tell `{first.candidate.label}` from: "
                       f"{', '.join(first.indistinguishable)} (BIC evidence within {INDISTINGUISHABLE_BIC:g}); either explains "
                       "the measurement.", ""]
+        for fitted in diagnosis.sequence[1:]:
+            if fitted.contenders:
+                others = [(label, chi2) for label, chi2 in fitted.contenders if label != fitted.candidate.label]
+                own = dict(fitted.contenders)[fitted.candidate.label]
+                lines += [f"`{fitted.candidate.label}` was chosen over " + ", ".join(f"`{label}`" for label, _ in others)
+                          + " (close to it with the effects chosen before held) because it fits best refitted jointly "
+                          f"with them: chi2 {own:.5g} against " + ", ".join(f"{chi2:.5g}" for _, chi2 in others) + ".", ""]
         alike = [f.candidate.label for f in diagnosis.sequence if f.candidate.effect in AMPLITUDE_ERROR_ALIKE]
         if repeated_steps == 0 and alike:
             names = " and ".join(f"`{a}`" for a in alike)
