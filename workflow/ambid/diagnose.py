@@ -915,9 +915,8 @@ def _choose(machine, measured, chosen, ranking, settings, cells, joint):
     """
     pick = ranking[0]
     contenders = [f for f in ranking[:CONTENDERS] if f.missing and f.chi2 <= CONTENDER_CHI2_RATIO * pick.chi2]
-    if chosen and len(contenders) > 1:
-        variant = machine if joint is None else replace(
-            joint.machine, effects=tuple(e for e in joint.machine.effects if e not in joint.effects))
+    if chosen and len(contenders) > 1:  # (with effects chosen before, there is a joint refit of them)
+        variant = replace(joint.machine, effects=tuple(e for e in joint.machine.effects if e not in joint.effects))
         refits = [(f, joint_refit(variant, measured, [*chosen, f], settings, cells, refit_variant=False))
                   for f in contenders]
         points = refits[0][1].residual.size
