@@ -122,3 +122,99 @@ def test_enough_modes_for_a_stiff_rotor_with_lumped_masses(demo_config):
     fine = {key: (f, values, std / 100) for key, (f, values, std) in measured.items()}
     modes, own, error = enough_modes(machine, fine)
     assert modes > 12 and own[0] > 0.1 and error[0] <= 0.1
+
+
+# ------------------------------------------------------------------ coil-current sampling
+def _cycle_average_by_quadrature(cutoff_hz, sample_time_s, frequency_hz, nodes=2001):
+    """The first-order amplifier's current averaged over each cycle of a held command ``u_k = z^k``, by quadrature of
+    its exact continuous solution (an independent check of `sampled_chain`'s closed form)."""
+    w = 2 * np.pi * cutoff_hz
+    z = np.exp(2j * np.pi * frequency_hz * sample_time_s)
+    decay = np.exp(-w * sample_time_s)
+    state = (1 - decay) / (z - decay)  # x_0 of the steady state: x_(k+1) = e^(-wT) x_k + (1 - e^(-wT)) u_k
+    s = np.linspace(0.0, sample_time_s, nodes)
+    within = np.exp(-w * s)[None, :] * state[:, None] + (1 - np.exp(-w * s))[None, :]  # x(kT + s) for u_k = 1
+    return np.trapezoid(within, s, axis=1) / sample_time_s
+
+
+def test_coil_current_sampling_conventions_against_their_definitions():
+    from ambid.compare import sampled_chain
+    from ambid.effects import AmplifierLowpass
+
+    f, T = np.array([10.0, 300.0, 2500.0, 9000.0]), 50e-6
+    z = np.exp(2j * np.pi * f * T)
+    # an ideal amplifier: one cycle behind U2 when sampled before the command acts, U2 itself over its cycle
+    assert np.allclose(sampled_chain([], T, f, "start_of_cycle"), 1 / z, rtol=0, atol=1e-15)
+    assert np.allclose(sampled_chain([], T, f, "cycle_average"), 1.0, rtol=0, atol=1e-15)
+    amplifier = AmplifierLowpass(cutoff_hz=2500.0)
+    average = sampled_chain([amplifier], T, f, "cycle_average")
+    assert np.allclose(average, _cycle_average_by_quadrature(2500.0, T, f), rtol=1e-6, atol=0)
+    # a slow amplifier's current barely changes over a cycle: its mean is its value half a cycle after the start
+    slow = AmplifierLowpass(cutoff_hz=5.0)
+    ratio = sampled_chain([slow], T, f[:1], "cycle_average") / sampled_chain([slow], T, f[:1], "start_of_cycle")
+    assert ratio[0] == pytest.approx(np.exp(1j * np.pi * f[0] * T), abs=1e-5)
+    with pytest.raises(CompareError, match="end_of_cycle"):
+        sampled_chain([], T, f, "end_of_cycle")
+
+
+def _coil_currents(sampling, cutoff_hz, relative_noise, seed, sample_time_s=50e-6):
+    from ambid.compare import sampled_chain
+    from ambid.effects import AmplifierLowpass
+
+    rng = np.random.default_rng(seed)
+    chain = [] if cutoff_hz is None else [AmplifierLowpass(cutoff_hz=cutoff_hz)]
+    out = {}
+    for axis in AXES:
+        values = sampled_chain(chain, sample_time_s, F, sampling)
+        std = np.full(F.size, relative_noise)
+        out[(f"I_{axis}", axis)] = (F, values + std * (rng.standard_normal(F.size) + 1j * rng.standard_normal(F.size))
+                                    / np.sqrt(2), std)
+    return out
+
+
+@pytest.mark.parametrize("sampling, cutoff_hz", [("cycle_average", None), ("cycle_average", 2500.0),
+                                                 ("start_of_cycle", 1800.0), ("start_of_cycle", None)])
+def test_the_coil_current_sampling_is_taken_from_the_data(demo_machine, sampling, cutoff_hz):
+    """A log that averages the current over the cycle (another writer's convention) is read so, and its amplifier's
+    bandwidth is not mistaken for the other convention's cycle of lag (at low frequency 2.5 kHz lags 64 us, a cycle
+    50 us): each convention is fitted with its own best bandwidth."""
+    from dataclasses import replace
+
+    from ambid.compare import coil_current_sampling_fit, with_coil_current_sampling
+
+    measured = _coil_currents(sampling, cutoff_hz, 1e-3, seed=3)
+    fit = coil_current_sampling_fit(measured, demo_machine.sample_time_s)
+    chi2, fitted = fit[sampling]
+    assert chi2 / fit["points"] < 1.3
+    assert (np.isinf(fitted) and cutoff_hz is None) or fitted == pytest.approx(cutoff_hz or np.inf, rel=0.02)
+    other = next(s for s in ("start_of_cycle", "cycle_average") if s != sampling)
+    assert fit[other][0] / fit["points"] > 100
+    assert demo_machine.coil_current_sampling == "auto"
+    machine, findings = with_coil_current_sampling(demo_machine, measured, "compare")
+    assert machine.coil_current_sampling == sampling
+    # the default is not worth a note; another convention taken from the data is, with both fits
+    assert [f.severity for f in findings] == ([] if sampling == "start_of_cycle" else ["note"])
+    if findings:
+        assert "cycle average" in findings[0].message and "start_of_cycle chi2/pt" in findings[0].message
+    # a machine file that names the other convention keeps it, with a warning that names the key
+    stated = replace(demo_machine, coil_current_sampling=other)
+    kept, warnings = with_coil_current_sampling(stated, measured, "compare")
+    assert kept.coil_current_sampling == other
+    assert [w.severity for w in warnings] == ["warning"] and "controller.coil_current_sampling" in warnings[0].message
+    # the model's coil currents follow the machine's convention
+    model = model_response(Plant(machine.with_effects(
+        [] if cutoff_hz is None else [effect_from_config({"name": "amplifier_lowpass",
+                                                         "parameters": {"cutoff_hz": cutoff_hz}}, "e")])), measured)
+    errors = summarize(channel_errors(measured, model))
+    assert errors[errors["output"] == "all"].iloc[0]["chi2"] < 1.3
+
+
+def test_coil_currents_that_do_not_tell_the_conventions_apart_keep_the_default(demo_machine):
+    measured = _coil_currents("cycle_average", None, 5.0, seed=4)  # noise 5 times the current: a cycle is invisible
+    from ambid.compare import with_coil_current_sampling
+
+    machine, findings = with_coil_current_sampling(demo_machine, measured, "diagnose")
+    assert machine.coil_current_sampling == "start_of_cycle"
+    assert len(findings) == 1 and "do not tell the two apart" in findings[0].message
+    positions_only, none = with_coil_current_sampling(demo_machine, {}, "diagnose")
+    assert positions_only.coil_current_sampling == "start_of_cycle" and none == []

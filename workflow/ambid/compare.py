@@ -27,18 +27,27 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
+import scipy.linalg
 
-from .effects import COIL_CURRENT_EFFECTS, at_excitation_level, series_state_space
+from .effects import COIL_CURRENT_EFFECTS, EFFECTS, at_excitation_level, series_state_space
 from .errors import AmbidError
 from .floor import RESOLVED, band_labels, frequency_bands
 from .frf import channel
 from .loop import zero_order_hold
-from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
+from .machine import ALL_AXES, AXIAL_AXIS, COIL_CURRENT_SAMPLING, RADIAL_AXES
 from .findings import Finding
 from .plant import Plant, zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes", "at_run_level"]
+           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes", "at_run_level",
+           "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
+
+
+#: The coil-current sampling of a machine file that does not say, and of `with_coil_current_sampling` where the data
+#: do not tell.
+DEFAULT_SAMPLING = COIL_CURRENT_SAMPLING[0]
+#: chi2 by which one coil-current sampling convention must fit better than the other to be taken from the data.
+SAMPLING_EVIDENCE = 10.0
 
 
 class CompareError(AmbidError):
@@ -106,8 +115,9 @@ def model_response(plant, channels):
 
     Positions: the plant's FRF times the zero-order hold (`model_channels`).  Coil
     currents: the amplifier chain of the axis (the `COIL_CURRENT_EFFECTS`)
-    discretized exactly with the hold and sampled at the start of the cycle
-    (`_sampled_chain`); one cycle's delay without one.
+    discretized exactly with the hold and sampled as the machine's
+    ``coil_current_sampling`` says (`sampled_chain`): at the start of the cycle,
+    one cycle behind without an amplifier, or averaged over the cycle.
 
     Parameters
     ----------
@@ -133,37 +143,174 @@ def model_response(plant, channels):
     return out
 
 
-_SAMPLED_CHAINS = {}  # the coil-current response by (chain, sample time, grid): shared by every plant (a diagnosis
-#                       rebuilds the plant at each evaluation; the amplifier chain rarely changes with it)
+_SAMPLED_CHAINS = {}  # the coil-current response by (chain, sampling, sample time, grid): shared by every plant (a
+#                       diagnosis rebuilds the plant at each evaluation; the amplifier chain rarely changes with it)
 
 
 def _sampled_coil_current(plant, axis, frequency_hz):
     chain = [e for e in plant.input_effects if e.name in COIL_CURRENT_EFFECTS and e.acts_on(axis)]
     frequency_hz = np.asarray(frequency_hz, dtype=float)
-    key = (repr(chain), plant.machine.sample_time_s, frequency_hz.tobytes())
+    sampling = plant.machine.coil_current_sampling
+    sampling = DEFAULT_SAMPLING if sampling == "auto" else sampling
+    key = (repr(chain), sampling, plant.machine.sample_time_s, frequency_hz.tobytes())
     if key not in _SAMPLED_CHAINS:
         if len(_SAMPLED_CHAINS) >= 1024:
             _SAMPLED_CHAINS.clear()
-        response = _sampled_chain(chain, plant.machine.sample_time_s, frequency_hz)
+        response = sampled_chain(chain, plant.machine.sample_time_s, frequency_hz, sampling)
         response.flags.writeable = False
         _SAMPLED_CHAINS[key] = response
     return _SAMPLED_CHAINS[key]
 
 
-def _sampled_chain(chain, sample_time_s, frequency_hz):
-    """The coil current sampled at the start of a cycle against the command U2: ``C (zI - Phi)^-1 Gamma + D / z``.
+def sampled_chain(chain, sample_time_s, frequency_hz, sampling=DEFAULT_SAMPLING):
+    """The logged coil current against the command U2 of an amplifier chain driven through the hold.
 
-    The amplifier chain discretized exactly with the hold; its direct term sees the
-    command of the cycle before (the PLC samples before it outputs), so an ideal
-    amplifier is one cycle behind, the limit of a fast one.
+    The chain ``x' = A x + B u``, ``i = C x + D u`` is discretized exactly over
+    the cycle ``T`` (``Phi = e^(AT)``, ``Gamma``), with ``x_k`` the state when
+    command ``u_k`` is output.  What the log pairs with ``u_k`` depends on when
+    the current is measured (`COIL_CURRENT_SAMPLING`):
+
+    * ``start_of_cycle``, sampled with the positions before the cycle's command
+      acts (the PLC reads its inputs first; ambid's rig):
+      ``C (zI - Phi)^-1 Gamma + D / z``, an ideal amplifier one cycle behind;
+    * ``cycle_average``, the mean over the cycle of the command (a drive's own
+      measurement, integrated over its period):
+      ``C M_x (zI - Phi)^-1 Gamma + C M_u + D`` with ``M_x = (1/T) int_0^T e^(As) ds``
+      and ``M_u = (1/T) int_0^T int_0^s e^(Ar) dr ds B``; an ideal amplifier is U2 itself.
+
+    Parameters
+    ----------
+    chain : list of Effect
+        `COIL_CURRENT_EFFECTS` in series (empty: an ideal amplifier).
+    sample_time_s : float
+    frequency_hz : array_like
+    sampling : str
+        One of `COIL_CURRENT_SAMPLING`.
     """
+    if sampling not in COIL_CURRENT_SAMPLING:
+        raise CompareError(f"coil-current sampling {sampling!r} is not one of {', '.join(COIL_CURRENT_SAMPLING)}")
     a, b, c, d = series_state_space([e.siso_state_space() for e in chain])
-    z = np.exp(2j * np.pi * frequency_hz * sample_time_s)
-    if a.shape[0] == 0:
-        return d[0, 0] / z
-    transition, gamma = zoh_discretize(a, b, sample_time_s)
-    resolvent = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - transition, gamma.astype(complex))
-    return (c @ resolvent)[:, 0, 0] + d[0, 0] / z
+    z = np.exp(2j * np.pi * np.asarray(frequency_hz, dtype=float) * sample_time_s)
+    n = a.shape[0]
+    if sampling == "start_of_cycle":
+        if n == 0:
+            return d[0, 0] / z
+        transition, gamma = zoh_discretize(a, b, sample_time_s)
+        resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - transition, gamma.astype(complex))
+        return (c @ resolvent)[:, 0, 0] + d[0, 0] / z
+    if n == 0:
+        return np.full(z.shape, d[0, 0], dtype=complex)
+    # Van Loan: expm([[F, I], [0, 0]] T) holds int_0^T e^(Fs) ds, F = [[A, B], [0, 0]] the held input's system
+    m = n + 1
+    augmented = np.zeros((2 * m, 2 * m))
+    augmented[:n, :n], augmented[:n, n:m], augmented[:m, m:] = a, b, np.eye(m)
+    exponential = scipy.linalg.expm(augmented * sample_time_s)
+    transition, gamma = exponential[:n, :n], exponential[:n, n:m]
+    mean_state, mean_input = exponential[:n, m:m + n] / sample_time_s, exponential[:n, m + n:] / sample_time_s
+    resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - transition, gamma.astype(complex))
+    return (c @ mean_state @ resolvent)[:, 0, 0] + (c @ mean_input)[0, 0] + d[0, 0]
+
+
+def coil_current_sampling_fit(measured, sample_time_s):
+    """How well each coil-current sampling convention explains a run's coil currents, the amplifier fitted with it.
+
+    The sampling convention and a current-loop bandwidth both make the coil
+    current lag the command (one cycle is 50 us; a 2.5 kHz first-order loop lags
+    64 us at low frequency), but only the loop's roll-off changes the magnitude.
+    So each convention is fitted with its best `AmplifierLowpass` common to all
+    axes (a log-spaced scan over 50 Hz - 1 MHz and a bounded refinement) or none,
+    on every coil-current channel, weighted by the measured uncertainty.
+
+    Parameters
+    ----------
+    measured : dict
+        `measured_channels`; only the ``I_<axis>`` channels are used.
+    sample_time_s : float
+
+    Returns
+    -------
+    dict or None
+        ``sampling -> (chi2, cutoff_hz)`` (``cutoff_hz`` inf: no amplifier low-pass),
+        and ``"points"``; None without coil-current channels.
+    """
+    import scipy.optimize  # here, not at the top: ~0.2 s of import in every rule that reads this module
+
+    channels = [value for (output, axis), value in measured.items() if output == current_channel(axis)]
+    if not channels:
+        return None
+    frequency = np.concatenate([f for f, _, _ in channels])
+    values = np.concatenate([v for _, v, _ in channels])
+    std = np.concatenate([s for _, _, s in channels])
+    grid, index = np.unique(frequency, return_inverse=True)
+    amplifier = EFFECTS["amplifier_lowpass"]
+
+    def chi2(sampling, log_cutoff):
+        chain = [] if log_cutoff is None else [amplifier(cutoff_hz=float(np.exp(log_cutoff)))]
+        response = sampled_chain(chain, sample_time_s, grid, sampling)[index]
+        return float(np.sum(np.abs((response - values) / std) ** 2))
+
+    out = {"points": int(values.size)}
+    scan = np.linspace(np.log(50.0), np.log(1e6), 61)
+    for sampling in COIL_CURRENT_SAMPLING:
+        trials = [chi2(sampling, x) for x in scan]
+        best = int(np.argmin(trials))
+        refined = scipy.optimize.minimize_scalar(lambda x: chi2(sampling, x), method="bounded",
+                                                 bounds=(scan[max(best - 1, 0)], scan[min(best + 1, scan.size - 1)]),
+                                                 options={"xatol": 1e-4})
+        ideal = chi2(sampling, None)
+        out[sampling] = (ideal, np.inf) if ideal <= refined.fun else (float(refined.fun), float(np.exp(refined.x)))
+    return out
+
+
+def with_coil_current_sampling(machine, measured, stage):
+    """The machine with the coil-current sampling convention this run's data follow, and what the user must know.
+
+    ``controller.coil_current_sampling: auto`` (the default) takes the convention
+    whose fit (`coil_current_sampling_fit`) has the least chi2, where the two differ
+    by more than `ambid.diagnose`'s indistinguishable evidence (10); otherwise, or
+    without coil-current channels, ``start_of_cycle``.  A machine file that names
+    its convention keeps it, with a warning where the data follow the other.  A
+    log written by other software may pair each coil current with the same
+    cycle's command, not the one before: read with the wrong convention, every
+    coil-current channel misfits by up to ``2 sin(pi f T)`` (16 % at 500 Hz and
+    50 us) and no effect of the library explains it.
+
+    Returns
+    -------
+    machine : ambid.machine.Machine
+        ``coil_current_sampling`` resolved (never ``auto``).
+    findings : list of Finding
+    """
+    fit = coil_current_sampling_fit(measured, machine.sample_time_s)
+    stated = machine.coil_current_sampling
+    if fit is None:
+        return replace(machine, coil_current_sampling=DEFAULT_SAMPLING if stated == "auto" else stated), []
+    best, other = sorted(COIL_CURRENT_SAMPLING, key=lambda s: fit[s][0])
+    decisive = fit[other][0] - fit[best][0] > SAMPLING_EVIDENCE
+    points = fit["points"]
+
+    def told(sampling):
+        chi2, cutoff = fit[sampling]
+        amplifier = "an ideal amplifier" if np.isinf(cutoff) else f"a {cutoff:.4g} Hz amplifier low-pass"
+        return f"{sampling} chi2/pt {chi2 / points:.3g} (with {amplifier})"
+
+    key = "controller.coil_current_sampling"
+    if stated == "auto":
+        chosen = best if decisive else DEFAULT_SAMPLING
+        if chosen == DEFAULT_SAMPLING and decisive:
+            return replace(machine, coil_current_sampling=chosen), []
+        message = (f"the coil currents of this run are read as sampled {chosen.replace('_', ' ')}: "
+                   f"{told(best)} against {told(other)}"
+                   + ("" if decisive else "; the data do not tell the two apart, so the default is used")
+                   + f" ({key}: auto; name it in the machine file to fix it)")
+        return replace(machine, coil_current_sampling=chosen), [
+            Finding(stage, "note", "coil_current_sampling", key, message, fit[other][0] - fit[best][0])]
+    if decisive and best != stated:
+        message = (f"the machine file says the coil currents are sampled {stated.replace('_', ' ')}, but this run's "
+                   f"follow {best.replace('_', ' ')}: {told(best)} against {told(stated)}; every coil-current channel "
+                   f"misfits until {key} says {best} (or auto)")
+        return machine, [Finding(stage, "warning", "coil_current_sampling", key, message, fit[stated][0] - fit[best][0])]
+    return machine, []
 
 
 def model_channels(plant, frequency_hz, channels):

@@ -30,6 +30,9 @@ __all__ = [
 RADIAL_AXES = ("DX", "DY", "NX", "NY")
 AXIAL_AXIS = "Z"
 ALL_AXES = RADIAL_AXES + (AXIAL_AXIS,)
+#: When a log's coil current is measured against the cycle's command (`ambid.compare.sampled_chain`): sampled at the
+#: start of the cycle, before the command acts (the default), or averaged over the cycle of the command.
+COIL_CURRENT_SAMPLING = ("start_of_cycle", "cycle_average")
 BEARINGS = ("DE", "NDE")
 #: control axis -> (bearing, plane)
 AXIS_LOCATION = {"DX": ("DE", "x"), "DY": ("DE", "y"), "NX": ("NDE", "x"), "NY": ("NDE", "y")}
@@ -117,6 +120,7 @@ class Machine:
     speed_rad_s: float = 0.0
     added_modal_damping: tuple = ()
     foundation: Foundation | None = None
+    coil_current_sampling: str = "auto"  # one of COIL_CURRENT_SAMPLING, or auto: from each run's data
     description: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -330,6 +334,10 @@ def machine_from_config(config, name=None, source=None):
             axial_magnet = _electromagnet(bearings_cfg["axial"]["electromagnet"], "bearings.axial.electromagnet")
         control_cfg = _require(config, "controller", "")
         sample_time = _positive(control_cfg.get("sample_time_s", 50e-6), "controller.sample_time_s")
+        sampling = control_cfg.get("coil_current_sampling", "auto")
+        if sampling not in ("auto", *COIL_CURRENT_SAMPLING):
+            raise ConfigError("controller.coil_current_sampling", f"{sampling!r} is not one of auto, "
+                                                                  f"{', '.join(COIL_CURRENT_SAMPLING)}")
         radial_settings = _require(control_cfg, "radial", "controller")
         per_axis = control_cfg.get("per_axis") or {}
         unknown_axes = set(per_axis) - set(RADIAL_AXES)
@@ -359,6 +367,7 @@ def machine_from_config(config, name=None, source=None):
             radial_controllers=radial_controllers,
             axial_controller=axial_controller,
             retained_modes=retained,
+            coil_current_sampling=sampling,
             radial_grid=_grid(_require(grids, "radial", "frequency_grid"), "frequency_grid.radial"),
             axial_grid=_grid(_require(grids, "axial", "frequency_grid"), "frequency_grid.axial"),
             sources=dict(config.get("sources", {})),
