@@ -195,7 +195,7 @@ def test_the_coil_current_sampling_is_taken_from_the_data(demo_machine, sampling
     # the default is not worth a note; another convention taken from the data is, with both fits
     assert [f.severity for f in findings] == ([] if sampling == "start_of_cycle" else ["note"])
     if findings:
-        assert "cycle average" in findings[0].message and "start_of_cycle chi2/pt" in findings[0].message
+        assert "averaged over the cycle" in findings[0].message and "start_of_cycle chi2/pt" in findings[0].message
     # a machine file that names the other convention keeps it, with a warning that names the key
     stated = replace(demo_machine, coil_current_sampling=other)
     kept, warnings = with_coil_current_sampling(stated, measured, "compare")

@@ -73,7 +73,7 @@ def test_an_independent_writers_log_is_diagnosed(tmp_path, effects, named):
     1 % (with the cycle-average coil currents confounded with a one-cycle lag at low frequency)."""
     path, config = foreign_log(tmp_path, "demo20", effects)
     diagnosis, notes = diagnosed(path, config)
-    assert [n.code for n in notes] == ["coil_current_sampling"] and "cycle average" in notes[0].message
+    assert [n.severity for n in notes] == ["note"] and "averaged over the cycle" in notes[0].message
     if named is None:
         assert diagnosis.verdict == "nothing" and diagnosis.lead is None
     else:

@@ -46,6 +46,8 @@ __all__ = ["CompareError", "measured_channels", "model_response", "model_channel
 #: The coil-current sampling of a machine file that does not say, and of `with_coil_current_sampling` where the data
 #: do not tell.
 DEFAULT_SAMPLING = COIL_CURRENT_SAMPLING[0]
+SAMPLING_TOLD = {"start_of_cycle": "sampled at the start of the cycle, before its command acts",
+                 "cycle_average": "averaged over the cycle of the command"}
 #: chi2 by which one coil-current sampling convention must fit better than the other to be taken from the data.
 SAMPLING_EVIDENCE = 10.0
 
@@ -299,16 +301,16 @@ def with_coil_current_sampling(machine, measured, stage):
         chosen = best if decisive else DEFAULT_SAMPLING
         if chosen == DEFAULT_SAMPLING and decisive:
             return replace(machine, coil_current_sampling=chosen), []
-        message = (f"the coil currents of this run are read as sampled {chosen.replace('_', ' ')}: "
-                   f"{told(best)} against {told(other)}"
+        message = (f"the coil currents of this run are read as {SAMPLING_TOLD[chosen]}: {told(best)} against "
+                   f"{told(other)}"
                    + ("" if decisive else "; the data do not tell the two apart, so the default is used")
                    + f" ({key}: auto; name it in the machine file to fix it)")
         return replace(machine, coil_current_sampling=chosen), [
             Finding(stage, "note", "coil_current_sampling", key, message, fit[other][0] - fit[best][0])]
     if decisive and best != stated:
-        message = (f"the machine file says the coil currents are sampled {stated.replace('_', ' ')}, but this run's "
-                   f"follow {best.replace('_', ' ')}: {told(best)} against {told(stated)}; every coil-current channel "
-                   f"misfits until {key} says {best} (or auto)")
+        message = (f"the machine file says the coil currents are {SAMPLING_TOLD[stated]}, but this run's are "
+                   f"{SAMPLING_TOLD[best]}: {told(best)} against {told(stated)}; every coil-current channel misfits "
+                   f"until {key} says {best} (or auto)")
         return machine, [Finding(stage, "warning", "coil_current_sampling", key, message, fit[stated][0] - fit[best][0])]
     return machine, []
 
