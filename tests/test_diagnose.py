@@ -226,6 +226,27 @@ def test_cells_and_report(demo):
     assert "helps_channels" in table.columns
 
 
+def test_a_fit_through_no_change_keeps_a_jacobian():
+    """A stiffness factor near 1 sits near 0 on its log search scale, where scipy's relative ``diff_step`` takes a step
+    near 0 and a Jacobian of rounding noise: on the independent rig's demo20 log with the design elements 5 % stiffer
+    the fit stopped within 1e-9 of scale 1 (the model as it was) and a modal damping was named instead.  The fit's
+    own forward differences (steps ``1e-4 max(1, |x|)``) keep the slope there, and the least squares reach 1.05."""
+    import scipy.optimize
+
+    from ambid.diagnose import _with_jacobian
+
+    def fun(x):  # a stiffness factor's misfit, smooth, in log coordinates; rounded like a model's response
+        return np.round(np.array([np.exp(x[0]) - 1.05, 0.1 * (np.exp(x[0]) - 1.05)]), 12)
+
+    value, jacobian = _with_jacobian(fun, np.array([np.log(0.05)]), np.array([np.log(5.0)]))
+    near_zero = np.array([3e-10])
+    assert jacobian(near_zero)[:, 0] == pytest.approx([1.0, 0.1], rel=1e-3)
+    relative = scipy.optimize.least_squares(fun, near_zero, diff_step=1e-4, bounds=(np.log(0.05), np.log(5.0)))
+    assert abs(np.exp(relative.x[0]) - 1) < 1e-6  # the old way: stuck at no change
+    solution = scipy.optimize.least_squares(value, near_zero, jac=jacobian, bounds=(np.log(0.05), np.log(5.0)))
+    assert np.exp(solution.x[0]) == pytest.approx(1.05, rel=1e-6)
+
+
 def test_a_weak_narrow_housing_mode_between_scan_points_is_a_lead_where_the_misfit_peaks():
     """A 12 t frame's mode (zeta 0.01, 15 Hz wide) on demo20's 80-point grid (12.5 Hz steps), halfway between two of
     the frequency scan's points (steps of 20 %): found from where the nominal model's misfit peaks, with its frequency

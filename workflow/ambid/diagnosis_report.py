@@ -291,6 +291,13 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                 lines += [f"`{fitted.candidate.label}` was chosen over " + ", ".join(f"`{label}`" for label, _ in others)
                           + " (close to it with the effects chosen before held) because it fits best refitted jointly "
                           f"with them: chi2 {own:.5g} against " + ", ".join(f"{chi2:.5g}" for _, chi2 in others) + ".", ""]
+        for fitted in diagnosis.sequence:
+            if fitted.replaced:
+                own = dict(fitted.replaced)[fitted.candidate.label]
+                label, chi2 = next((label, chi2) for label, chi2 in fitted.replaced if label != fitted.candidate.label)
+                lines += [f"`{fitted.candidate.label}` replaced `{label}`, which its round had chosen before the effects "
+                          "chosen after it were in the model: refitted jointly with all the other effects chosen, it fits "
+                          f"best (chi2 {own:.5g} against {chi2:.5g}).", ""]
         alike = [f.candidate.label for f in diagnosis.sequence if f.candidate.effect in AMPLITUDE_ERROR_ALIKE]
         if repeated_steps == 0 and alike:
             names = " and ".join(f"`{a}`" for a in alike)
