@@ -53,7 +53,10 @@ afresh; close contenders told apart by a joint refit, `ambid.diagnose._choose`):
 gyroscopic 2026 no longer with a 0.07 % stiffness change beside it; hs's modal damping + sensor low-pass named alone,
 was with a delay, a sensor shift and the actuator coefficients), parameters 43 -> 44, final misfit 49 -> 50 of 50,
 outside 8 of 8, negative controls 4 of 4; the four misses are all at the floor ("nothing", three with the hidden
-effect as lead); diagnosis 115.8 -> 102.6 s over the 50 rigs (median 1.65 -> 1.42 s).  About 8 minutes.
+effect as lead); diagnosis 115.8 -> 102.6 s over the 50 rigs (median 1.65 -> 1.42 s).  Stop 36 (the fit's own forward-difference
+Jacobian, `ambid.diagnose._with_jacobian`; each round's contenders refitted with all the other chosen effects,
+`ambid.diagnose._swap`): the same figures (46, 44, 50, 8, 4 of 4); demo20's delay + foundation pair 2026 now
+named as itself (was a sensor pole, indistinguishable, beside the foundation); diagnosis 104.0 s.  About 8 minutes.
 """
 
 import concurrent.futures

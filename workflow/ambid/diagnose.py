@@ -39,7 +39,8 @@ indistinguishable.
 
 **Selection and joint refit.**  Missing effects are chosen one after the other
 (forward selection; of close contenders, the one that fits best refitted jointly
-with those chosen before, `_choose`); then all chosen effects' parameters and the
+with those chosen before, `_choose`, and at the end with all the others, `_swap`);
+then all chosen effects' parameters and the
 variant's own effects (what earlier diagnoses added, the model update's moduli)
 are refitted together, with a weak prior keeping what the data do not determine
 at its configured value (`joint_refit`), standard deviations and correlations.
