@@ -433,6 +433,7 @@ def test_close_contenders_are_told_apart_by_the_joint_refit(identification):
     assert "delay" in contenders and contenders["sensor_lowpass"] < contenders["delay"]
     _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "contenders")
     assert "`sensor_lowpass` was chosen over `delay`" in page
+    assert "the same as a first-order lag of the force" in page  # what else a sensor pole on positions can be
 
 
 def test_the_zero_amplitude_frf_gives_the_weak_foundation_its_mass(identification):

@@ -298,6 +298,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                 lines += [f"`{fitted.candidate.label}` replaced `{label}`, which its round had chosen before the effects "
                           "chosen after it were in the model: refitted jointly with all the other effects chosen, it fits "
                           f"best (chi2 {own:.5g} against {chi2:.5g}).", ""]
+        if any(f.candidate.effect == "sensor_lowpass" for f in diagnosis.sequence):
+            lines += ["On the position channels a first-order `sensor_lowpass` is the same as a first-order lag of the "
+                      "force behind the coil current (a slow flux, eddy currents in solid iron), and the coil currents "
+                      "see neither: where the sensors' bandwidth is known to be higher, read it as that lag "
+                      "(`eddy_current` is the laminations' half-order one).", ""]
         alike = [f.candidate.label for f in diagnosis.sequence if f.candidate.effect in AMPLITUDE_ERROR_ALIKE]
         if repeated_steps == 0 and alike:
             names = " and ".join(f"`{a}`" for a in alike)
