@@ -46,6 +46,7 @@ __all__ = ["CompareError", "measured_channels", "model_response", "model_channel
 #: The coil-current sampling of a machine file that does not say, and of `with_coil_current_sampling` where the data
 #: do not tell.
 DEFAULT_SAMPLING = COIL_CURRENT_SAMPLING[0]
+#: What each coil-current sampling convention means, as the findings say it.
 SAMPLING_TOLD = {"start_of_cycle": "sampled at the start of the cycle, before its command acts",
                  "cycle_average": "averaged over the cycle of the command"}
 #: chi2 by which one coil-current sampling convention must fit better than the other to be taken from the data.
