@@ -61,6 +61,8 @@ def frf_stage(path):
 
 
 def diagnosed(path, config):
+    """The nominal model of ``config`` diagnosed on the log at ``path`` as rule `diagnose` does; and the coil-current
+    sampling findings."""
     measured = measured_channels(frf_stage(path))
     machine = machine_from_config(config, name=config["name"])
     machine, _ = with_enough_modes(machine, measured, "diagnose")
