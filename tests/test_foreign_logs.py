@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ambid.compare import measured_channels, with_coil_current_sampling, with_enough_modes
+from ambid.compare import for_run, measured_channels
 from ambid.diagnose import DiagnoseSettings, diagnose
 from ambid.diagnosis_report import diagnosis_report
 from ambid.errors import settings_from_mapping
@@ -64,9 +64,8 @@ def diagnosed(path, config):
     """The nominal model of ``config`` diagnosed on the log at ``path`` as rule `diagnose` does; and the coil-current
     sampling findings."""
     measured = measured_channels(frf_stage(path))
-    machine = machine_from_config(config, name=config["name"])
-    machine, _ = with_enough_modes(machine, measured, "diagnose")
-    machine, notes = with_coil_current_sampling(machine, measured, "diagnose")
+    machine, findings = for_run(machine_from_config(config, name=config["name"]), measured, {}, "diagnose")
+    notes = [f for f in findings if f.code == "coil_current_sampling"]
     return diagnose(machine, measured, settings=settings_from_mapping(DiagnoseSettings, CONFIG["diagnose"], "diagnose")), notes
 
 

@@ -40,7 +40,7 @@ from .plant import Plant, zoh_discretize
 
 __all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
            "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes", "at_run_level",
-           "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
+           "for_run", "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
 
 
 #: The coil-current sampling of a machine file that does not say, and of `with_coil_current_sampling` where the data
@@ -270,7 +270,7 @@ def with_coil_current_sampling(machine, measured, stage):
 
     ``controller.coil_current_sampling: auto`` (the default) takes the convention
     whose fit (`coil_current_sampling_fit`) has the least chi2, where the two differ
-    by more than `ambid.diagnose`'s indistinguishable evidence (10); otherwise, or
+    by more than `SAMPLING_EVIDENCE` (10, the diagnosis' indistinguishable evidence); otherwise, or
     without coil-current channels, ``start_of_cycle``.  A machine file that names
     its convention keeps it, with a warning where the data follow the other.  A
     log written by other software may pair each coil current with the same
@@ -314,6 +314,22 @@ def with_coil_current_sampling(machine, measured, stage):
                    f"until {key} says {best} (or auto)")
         return machine, [Finding(stage, "warning", "coil_current_sampling", key, message, fit[stated][0] - fit[best][0])]
     return machine, []
+
+
+def for_run(machine, measured, frf_metadata, stage):
+    """The machine as one run measures it, and what the user must know: at the run's excitation level
+    (`at_run_level`), with enough retained modes (`with_enough_modes`) and the run's coil-current sampling
+    (`with_coil_current_sampling`).  What rules `compare` and `diagnose` model a run with.
+
+    Returns
+    -------
+    machine : ambid.machine.Machine
+    findings : list of Finding
+    """
+    machine, level = at_run_level(machine, frf_metadata, stage)
+    machine, modes = with_enough_modes(machine, measured, stage)
+    machine, sampling = with_coil_current_sampling(machine, measured, stage)
+    return machine, level + modes + sampling
 
 
 def model_channels(plant, frequency_hz, channels):

@@ -927,7 +927,7 @@ CONTENDERS = 3
 CONTENDER_CHI2_RATIO = 2.0
 
 
-def _choose(machine, measured, chosen, ranking, settings, cells, joint):
+def _choose(machine, measured, chosen, contenders, settings, cells, joint):
     """The round's effect and the joint refit with it: among close contenders, the one that fits best refitted jointly
     with the effects chosen before.
 
@@ -940,10 +940,9 @@ def _choose(machine, measured, chosen, ranking, settings, cells, joint):
     ``chi2`` (at most `CONTENDERS`) are each refitted with the chosen effects (the
     variant's own parameters held where the last joint refit put them), and the one
     of least ``BIC = 2 chi2 / c + k ln(2N)`` (``c`` as in `_rank`, over these refits)
-    is chosen; then the full joint refit with it.
+    is chosen; then the full joint refit with it.  ``contenders``: `_contenders` of the round's ranking, best first.
     """
-    pick = ranking[0]
-    contenders = _contenders(ranking)
+    pick = contenders[0]
     if chosen and len(contenders) > 1:  # (with effects chosen before, there is a joint refit of them)
         refits = [(f, joint_refit(_variant(joint), measured, [*chosen, f], settings, cells, refit_variant=False))
                   for f in contenders]
@@ -1056,8 +1055,8 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     judged_on = float(np.vdot(current, current).real)
     rounds = []  # each round's close contenders, for `_swap`
     while ranking and ranking[0].missing and len(chosen) < settings.sequence_length:
-        pick, joint = _choose(machine, measured, chosen, ranking, settings, cells, joint)
         rounds.append(_contenders(ranking))
+        pick, joint = _choose(machine, measured, chosen, rounds[-1], settings, cells, joint)
         chosen.append(pick)
         masked = joint.chi2 < 0.5 * judged_on
         remaining = [c for c in candidates

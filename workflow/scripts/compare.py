@@ -1,7 +1,6 @@
 """Rule `compare`: one model variant against one identification run -> errors per channel, frequency and band, figures."""
 
-from ambid.compare import (at_run_level, channel_errors, measured_channels, model_response, summarize,
-                           with_coil_current_sampling, with_enough_modes)
+from ambid.compare import channel_errors, for_run, measured_channels, model_response, summarize
 from ambid.findings import write_findings
 from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
@@ -15,11 +14,9 @@ settings = snakemake.params.settings
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_name, source=snakemake.input.machine)
 table, info = read_parquet(snakemake.input.frf, kind="frf")
 measured = measured_channels(table)
-machine, level = at_run_level(machine, info["metadata"], "compare")
-machine, findings = with_enough_modes(machine, measured, "compare")
-machine, sampling = with_coil_current_sampling(machine, measured, "compare")
-write_findings(level + findings + sampling, snakemake.output.findings)
-for finding in level + sampling:
+machine, findings = for_run(machine, measured, info["metadata"], "compare")
+write_findings(findings, snakemake.output.findings)
+for finding in findings:
     log.info(finding.message)
 model = model_response(Plant(machine), measured)
 errors = channel_errors(measured, model)

@@ -2,8 +2,7 @@
 
 import pandas as pd
 
-from ambid.compare import (at_run_level, measured_channels, model_response, with_coil_current_sampling,
-                           with_enough_modes)
+from ambid.compare import for_run, measured_channels, model_response
 from ambid.diagnose import JOINT_COLUMNS, DiagnoseSettings, diagnose, plant_with_effects
 from ambid.diagnosis_report import diagnosis_findings, diagnosis_report
 from ambid.errors import settings_from_mapping
@@ -22,9 +21,7 @@ settings = settings_from_mapping(DiagnoseSettings, snakemake.params.settings, "d
 machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_name, source=snakemake.input.machine)
 table, info = read_parquet(snakemake.input.frf, kind="frf")
 measured = measured_channels(table)
-machine, level = at_run_level(machine, info["metadata"], "diagnose")
-machine, truncation = with_enough_modes(machine, measured, "diagnose")
-machine, sampling = with_coil_current_sampling(machine, measured, "diagnose")
+machine, run_findings = for_run(machine, measured, info["metadata"], "diagnose")
 diagnosis = diagnose(machine, measured, settings=settings)
 plant = Plant(machine)
 model = model_response(plant, measured)
@@ -35,7 +32,7 @@ write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame
           snakemake.output.joint)
 write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=["family", "band", "points"], suffixes=("_before", "_after")),
           snakemake.output.cells)
-write_findings(level + truncation + sampling + diagnosis_findings(diagnosis), snakemake.output.findings)
+write_findings(run_findings + diagnosis_findings(diagnosis), snakemake.output.findings)
 write_tsv([diagnosis.summary()], snakemake.output.verdict)
 with atomic_path(snakemake.output.text) as temporary:
     temporary.write_text(text)
