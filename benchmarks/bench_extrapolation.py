@@ -68,7 +68,7 @@ def machine_config():
 
 def family_chi2(measured, predicted):
     """chi2 per point per channel family (`ambid.diagnose.misfit_cells` summed over bands): ``{family: (chi2/pt, points)}``."""
-    cells = misfit_cells(measured, predicted).assign(chi2=lambda c: c["chi2_per_point"] * c["points"])
+    cells = misfit_cells(measured, predicted).query("output == 'all'").assign(chi2=lambda c: c["chi2_per_point"] * c["points"])
     totals = cells.groupby("family")[["chi2", "points"]].sum()
     return {family: (row.chi2 / row.points, int(row.points)) for family, row in totals.iterrows()}
 

@@ -86,6 +86,19 @@ def test_an_independent_writers_log_is_diagnosed(tmp_path, effects, named):
     assert diagnosis.cells_after["chi2_per_point"].max() < 1.5
 
 
+def test_one_sensors_gain_is_unexplained_misfit_in_its_row(tmp_path):
+    """demo20 from the independent rig with the NX sensor's gain 4 % high, physics outside the library.  The log has no
+    repeated steps, so the floor is the constant fallback (2 % in positions) and the band cells, each pooling four
+    sensors, stay within it; the NX sensor's row over all bands does not (chi2 per point 2.3, the other rows 0.5), and
+    the verdict names it.  Before the rows were read the verdict was "nothing" (the actuator coefficients as lead)."""
+    path, config = foreign_log(tmp_path, "demo20", [{"name": "sensor_gain", "axis": "NX", "gain": 1.04}])
+    diagnosis, _ = diagnosed(path, config)
+    assert diagnosis.verdict == "unexplained" and not diagnosis.sequence
+    assert diagnosis.unexplained[["family", "output"]].values.tolist() == [["positions", "NX"]]
+    assert not diagnosis.cells_after.query("output == 'all'")["above_floor"].any()
+    assert diagnosis.summary()["unexplained"] == "positions output NX (all bands)"
+
+
 def test_a_round_chosen_before_a_later_effect_was_in_the_model_is_revisited(tmp_path):
     """hs_eden_like from the independent rig with a 6 kHz sensor pole.  Its rotor is 0.1 % stiffer in the motor than
     ambid's (another FEM's choice), so the first round's fits carry that misfit too: an eddy-current corner near 3 kHz

@@ -17,7 +17,7 @@ import yaml
 
 from .amplitude import AMPLITUDE_ERROR_ALIKE
 from .compare import channel_errors, model_response, summarize
-from .diagnose import INDISTINGUISHABLE_BIC, effect_label
+from .diagnose import INDISTINGUISHABLE_BIC, cell_name, effect_label
 from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
@@ -143,7 +143,7 @@ def _marked_bounds(fitted):
 
 
 def _cells_text(cells):
-    return ", ".join(f"{r.family} {r.band} (chi2 per point {r.chi2_per_point:.3g}, {r.points} points)"
+    return ", ".join(f"{cell_name(r)} (chi2 per point {r.chi2_per_point:.3g}, {r.points} points)"
                      for r in cells.sort_values("chi2_per_point", ascending=False).itertuples())
 
 

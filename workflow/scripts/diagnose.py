@@ -30,7 +30,7 @@ candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machin
 write_tsv(candidates, snakemake.output.candidates)
 write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame(columns=list(JOINT_COLUMNS)),
           snakemake.output.joint)
-write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=["family", "band", "points"], suffixes=("_before", "_after")),
+write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=["family", "band", "output", "points"], suffixes=("_before", "_after")),
           snakemake.output.cells)
 write_findings(run_findings + diagnosis_findings(diagnosis), snakemake.output.findings)
 write_tsv([diagnosis.summary()], snakemake.output.verdict)
