@@ -247,7 +247,7 @@ class _Cells:
 
     The selection reads the band cells alone (`above`), a partition that counts each point once, so a candidate's
     share of the excess is a share of the points' misfit; the rows are read in the verdict, as misfit the chosen
-    effects leave.  They do not choose: the per-axis `actuator_coefficients` absorb most of one sensor's gain (that
+    effects leave, in a family whose band cells are all within the floor (`frame`).  They do not choose: the per-axis `actuator_coefficients` absorb most of one sensor's gain (that
     4 % NX gain: force constant NX 1.05, DX 1.03, bias current NX 0.97, the NX row to 0.98, DX's up from 0.5 to 0.96),
     physics the library does not hold named as physics it does.
     """
@@ -306,10 +306,15 @@ class _Cells:
         return float(np.sum((self.points * np.maximum(self.chi2(residual) - 1.0, 0.0))[cells]))
 
     def frame(self, residual, limit):
+        """Each cell's ``chi2`` per point and whether it is above the floor; a row only where every band cell of its
+        family is within the floor (else the bands name the misfit, and every row carries some of it)."""
         per_point = self.chi2(residual)
-        return pd.DataFrame({"family": [n[0] for n in self.names], "band": [n[1] for n in self.names],
-                             "output": [n[2] for n in self.names], "points": self.points.astype(int),
-                             "chi2_per_point": per_point, "above_floor": self.above(per_point, limit, rows=True)})
+        above = self.above(per_point, limit, rows=True)
+        family = np.array([n[0] for n in self.names])
+        bands_above = {f for f, a, row in zip(family, above, self.rows) if a and not row}
+        above &= ~(self.rows & np.isin(family, list(bands_above)))
+        return pd.DataFrame({"family": family, "band": [n[1] for n in self.names], "output": [n[2] for n in self.names],
+                             "points": self.points.astype(int), "chi2_per_point": per_point, "above_floor": above})
 
 
 def cell_name(cell):
