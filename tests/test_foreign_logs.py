@@ -21,12 +21,9 @@ from ambid.compare import for_run, measured_channels
 from ambid.diagnose import DiagnoseSettings, diagnose
 from ambid.diagnosis_report import diagnosis_report
 from ambid.errors import settings_from_mapping
-from ambid.floor import FloorSettings
-from ambid.frf import frf_from_log, log_arrays
-from ambid.logs import noise_from_scatter
+from ambid.frf import frf_stage as stage_of_log
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
-from ambid.plausibility import FRF_SETTINGS, check_log
 from ambid.readers import read_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,15 +46,10 @@ def foreign_log(directory, machine, effects, radial_points=120, seed=1):
 
 
 def frf_stage(path):
-    """The FRF stage as rule `frf` runs it on a user's log without noise columns: noise from the scatter between
-    steps, the model-free checks, SISO and MIMO ETFE with the floor."""
+    """The FRF table of the log at ``path``, made as rule `frf` makes it (`ambid.frf.frf_stage`: noise from the
+    scatter between steps, the model-free checks, SISO and MIMO ETFE with the floor)."""
     frame, _ = read_log(path, "table")
-    settings = {**FRF_SETTINGS, **CONFIG["frf"]}
-    floor = FloorSettings.from_config({k: v for k, v in settings.items() if k not in FRF_SETTINGS})
-    frame = noise_from_scatter(frame, str(path))
-    frame, _ = check_log(frame, log_arrays(frame), settings, str(path))
-    table, _, _ = frf_from_log(frame, floor, source=str(path), estimator=settings["estimator"])
-    return table
+    return stage_of_log(frame, CONFIG["frf"], str(path)).table
 
 
 def diagnosed(path, config):

@@ -20,16 +20,20 @@ mean) propagates to first order, ``dP = (dV - P dU) U^-1``, giving a standard
 deviation per FRF point that later stages use as fit weights.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 import pandas as pd
 
 from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, pooled_noise, systematic_floor
-from .logs import CHANNELS
+from .logs import CHANNELS, noise_from_scatter, repeated_steps
 from .machine import ALL_AXES, RADIAL_AXES
+from .plausibility import FRF_SETTINGS, check_log
 
-__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "channel"]
+__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "FrfStage", "frf_stage",
+           "channel"]
 
 
 def log_arrays(frame, level=0):
@@ -224,6 +228,54 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     floors = account_zero_amplitude(floors, table, extrapolated).assign(
         noise_pooled_steps=2 * settings.noise_half_width + 1)
     return table, floors, mimo
+
+
+class FrfStage(NamedTuple):
+    """What `frf_stage` makes of one log."""
+
+    table: pd.DataFrame  # `frf_from_log`'s
+    floors: pd.DataFrame  # `frf_from_log`'s
+    mimo: tuple | None  # `mimo_etfe`'s output (its condition numbers), or None
+    findings: list  # the checks' `ambid.findings.Finding`s
+    scatter_noise: pd.Series | None  # each channel's noise from its scatter, where the log carried none
+    repeated_steps: int  # `ambid.logs.repeated_steps` of the steps kept
+
+
+def frf_stage(frame, settings, log, source=None, source_lines=None, original=None):
+    """The FRF stage of one identification log, as rule `frf` runs it.
+
+    Where the log carries no noise estimate (``noise_std`` all 0: a thesis ``.m``, a user's table), each channel's
+    noise from its scatter between neighbouring steps (`ambid.logs.noise_from_scatter`); the model-free checks
+    (`ambid.plausibility.check_log`: radial runs, outlier cells); then `frf_from_log` with the floor.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The validated log.
+    settings : dict
+        The config's ``frf`` section: `ambid.plausibility.FRF_SETTINGS` keys (defaults where absent) and
+        `ambid.floor.FloorSettings` keys.
+    log : str
+        The log file the checks name.
+    source : str, optional
+        The file errors name where it is another (the user's file a log was converted from); default ``log``.
+    source_lines, original : optional
+        As `ambid.plausibility.check_log` (a log converted from a thesis ``.m``).
+
+    Returns
+    -------
+    FrfStage
+    """
+    settings = {**FRF_SETTINGS, **settings}
+    floor_settings = FloorSettings.from_config({k: v for k, v in settings.items() if k not in FRF_SETTINGS})
+    source = source or log
+    scatter_noise = None
+    if (frame["noise_std"] == 0).all():
+        frame = noise_from_scatter(frame, source)
+        scatter_noise = frame.groupby("channel")["noise_std"].first()
+    frame, findings = check_log(frame, log_arrays(frame), settings, log, source_lines, original)
+    table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
+    return FrfStage(table, floors, mimo, findings, scatter_noise, repeated_steps(frame))
 
 
 def channel(table, estimator, output, input_axis, systematic=False):

@@ -7,11 +7,11 @@ from ambid.amplitude import AMPLITUDE_ERROR_ALIKE
 from ambid.errors import LogError
 from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
-from ambid.frf import channel, frf_from_log, log_arrays
+from ambid.frf import channel, frf_stage
 from ambid.io import rule_log, write_parquet, write_tsv
-from ambid.logs import log_source, noise_from_scatter, read_identification_log, repeated_steps
+from ambid.logs import log_source, read_identification_log
 from ambid.machine import RADIAL_AXES
-from ambid.plausibility import FRF_SETTINGS, check_log
+from ambid.plausibility import FRF_SETTINGS
 from ambid.plots import bode_measured, save_figure
 from ambid.readers import read_uff_frf
 from ambid.uff import frf_channels, write_uff58
@@ -40,18 +40,15 @@ else:
                                             f"digest {metadata.get('original_sha256', 'unknown')}): delete it and "
                                             "Snakemake converts the file again")
     source = log_source(snakemake.input.log, info)  # errors name the user's file
-    if (frame["noise_std"] == 0).all():  # no noise estimate in the log (thesis .m format)
-        frame = noise_from_scatter(frame, source)
+    stage = frf_stage(frame, settings, snakemake.input.log, source, metadata.get("source_lines"), metadata.get("original"))
+    if stage.scatter_noise is not None:  # no noise estimate in the log (thesis .m format)
         log.info("the log carries no noise estimate: each channel's noise from its scatter between steps, %s",
-                 ", ".join(f"{name} {value:.3g}" for name, value in frame.groupby("channel")["noise_std"].first().items()))
-    frame, findings = check_log(frame, log_arrays(frame), settings, snakemake.input.log, metadata.get("source_lines"),
-                                metadata.get("original"))
-    for finding in findings:
+                 ", ".join(f"{name} {value:.3g}" for name, value in stage.scatter_noise.items()))
+    for finding in stage.findings:
         log.warning("%s", finding.message)
-    table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
-    repeated = repeated_steps(frame)
-    if mimo is not None:
-        condition = mimo[3]
+    table, floors, findings, repeated = stage.table, stage.floors, stage.findings, stage.repeated_steps
+    if stage.mimo is not None:
+        condition = stage.mimo[3]
         log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
 write_tsv(floors, snakemake.output.floor)
 for row in floors.itertuples():
