@@ -89,6 +89,12 @@ def test_one_sensors_gain_is_unexplained_misfit_in_its_row(tmp_path):
     assert diagnosis.unexplained[["family", "output"]].values.tolist() == [["positions", "NX"]]
     assert not diagnosis.cells_after.query("output == 'all'")["above_floor"].any()
     assert diagnosis.summary()["unexplained"] == "positions output NX (all bands)"
+    # the page says where, and what the residual's shape points to
+    measured = measured_channels(frf_stage(path))
+    machine, _ = for_run(machine_from_config(config, name=config["name"]), measured, {}, "diagnose")
+    _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "sensor gain", repeated_steps=0)
+    assert "no effect of the library brings positions output NX (all bands)" in page
+    assert "Above the floor: positions output NX (all bands)" in page and "a gain error of the NX sensor" in page
 
 
 def test_a_round_chosen_before_a_later_effect_was_in_the_model_is_revisited(tmp_path):

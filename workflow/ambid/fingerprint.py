@@ -13,6 +13,7 @@ than the model) and `ambid.compare.summarize`.
 
 import numpy as np
 
+from .diagnose import cell_name
 from .machine import RADIAL_AXES
 
 __all__ = ["fingerprint", "where_it_helps", "gain_offsets"]
@@ -99,7 +100,7 @@ def fingerprint(errors, summary, cells=None):
         if above.empty:
             sentences.append("Every channel family and band is within the floor.")
         else:
-            sentences.append("Above the floor: " + ", ".join(f"{r.family} {r.band} (chi2 {r.chi2_per_point:.3g})"
+            sentences.append("Above the floor: " + ", ".join(f"{cell_name(r)} (chi2 {r.chi2_per_point:.3g})"
                                                              for r in above.sort_values("chi2_per_point", ascending=False)
                                                              .head(4).itertuples()) + ".")
     per_channel = summary[(summary["band"] == "all") & (summary["output"] != "all")]
