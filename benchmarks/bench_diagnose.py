@@ -56,7 +56,11 @@ outside 8 of 8, negative controls 4 of 4; the four misses are all at the floor (
 effect as lead); diagnosis 115.8 -> 102.6 s over the 50 rigs (median 1.65 -> 1.42 s).  Stop 36 (the fit's own forward-difference
 Jacobian, `ambid.diagnose._with_jacobian`; each round's contenders refitted with all the other chosen effects,
 `ambid.diagnose._swap`): the same figures (46, 44, 50, 8, 4 of 4); demo20's delay + foundation pair 2026 now
-named as itself (was a sensor pole, indistinguishable, beside the foundation); diagnosis 104.0 s.  About 8 minutes.
+named as itself (was a sensor pole, indistinguishable, beside the foundation); diagnosis 104.0 s.  Stop 37 (each
+rig's model as rule diagnose makes it, `ambid.compare.for_run`: the coil-current sampling taken from the data, now
+with a second-order loop among the amplifiers it is fitted with; the misfit the chosen effects leave read per output
+row): the same figures; start_of_cycle, the rig's convention, on 62 of 62 rigs, and a ``coil_current_loop`` note on
+the two second-order-amplifier rigs only.  About 8 minutes.
 """
 
 import concurrent.futures
@@ -69,7 +73,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ambid.compare import measured_channels, model_response
+from ambid.compare import for_run, measured_channels, model_response
 from ambid.diagnose import (INDISTINGUISHABLE_BIC, bic_evidence, diagnose, effect_label, misfit,
                             plant_with_effects)
 from ambid.effects import EFFECTS, effect_from_config
@@ -133,9 +137,13 @@ def run_case(case):
     identified = time.perf_counter() - started
     measured = measured_channels(table)
     started = time.perf_counter()
-    diagnosis = diagnose(machine_from_config(config), measured)
+    # as rule diagnose models a run (the coil-current sampling taken from the data: the rig samples at the start of
+    # the cycle)
+    model, findings = for_run(machine_from_config(config), measured, {}, "diagnose")
+    diagnosis = diagnose(model, measured)
     return {"case": case, "draws": draws, "diagnosis": diagnosis, "identify_s": identified,
-            "diagnose_s": time.perf_counter() - started, "truth_evidence": truth_evidence(config, measured, effects)}
+            "diagnose_s": time.perf_counter() - started, "truth_evidence": truth_evidence(config, measured, effects),
+            "sampling": model.coil_current_sampling, "run_findings": sorted({f.code for f in findings})}
 
 
 def truth_evidence(config, measured, effects):
@@ -244,6 +252,11 @@ def suite(seeds, radial_points, workers):
     negatives = by_kind("none")
     print(f"negative controls with nothing missing: {sum(s['clean'] for s in negatives)} of {len(negatives)} "
           f"(with a lead: {', '.join(s['lead'] for s in negatives if s['lead']) or 'none'})")
+    sampling = [r["sampling"] for r, _ in results]
+    print(f"coil-current sampling taken from the data: start_of_cycle (the rig's) on "
+          f"{sampling.count('start_of_cycle')} of {len(sampling)} rigs; run findings: "
+          + (", ".join(f"{r['case'][0]} {r['case'][3]} {'+'.join(r['case'][2]) or 'none'}: {', '.join(r['run_findings'])}"
+                       for r, _ in results if r["run_findings"]) or "none"))
     times = [r["diagnose_s"] for r, _ in results]
     print(f"diagnosis wall time per rig: median {np.median(times):.1f} s, max {np.max(times):.1f} s\n")
 

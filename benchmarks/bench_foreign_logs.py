@@ -30,6 +30,11 @@ effects and the outside cases):
 - outside the library: the amplifier and the frame leave unexplained cells on both machines; the sensor gain is
   "nothing" on demo20 and named ``element_stiffness[nde_amb]`` 1.015 on hs (the constant floor of a log without
   repeats hides one sensor's 4 %): 3 of 3 and 2 of 3.
+Stop 37 (the misfit per output row, `ambid.diagnose._Cells`; a second-order loop in the coil-current sampling fit):
+the sensor gain is "unexplained misfit: positions output NX (all bands)" on demo20 and keeps the stiffness beside
+that row on hs, outside 3 of 3 on both machines (seeds 2, 3 and 4); the second-order amplifier's currents are read
+as averaged over the cycle (they were read as sampled at its start) with a ``coil_current_loop`` note naming the
+loop; the library cases as before.
 """
 
 import contextlib

@@ -184,11 +184,16 @@ def test_the_coil_current_sampling_is_taken_from_the_data(demo_machine, sampling
 
     measured = _coil_currents(sampling, cutoff_hz, 1e-3, seed=3)
     fit = coil_current_sampling_fit(measured, demo_machine.sample_time_s)
-    chi2, fitted = fit[sampling]
+    chi2, amplifier = fit[sampling]
     assert chi2 / fit["points"] < 1.3
-    assert (np.isinf(fitted) and cutoff_hz is None) or fitted == pytest.approx(cutoff_hz or np.inf, rel=0.02)
+    if cutoff_hz is None:  # (noise fits: a loop far above the band is as good as none)
+        assert amplifier["order"] == 0 or amplifier.get("cutoff_hz", amplifier.get("natural_hz")) > 20e3, amplifier
+    else:
+        assert amplifier["order"] == 1 and amplifier["cutoff_hz"] == pytest.approx(cutoff_hz, rel=0.02)
     other = next(s for s in ("start_of_cycle", "cycle_average") if s != sampling)
-    assert fit[other][0] / fit["points"] > 100
+    # (averaging over the cycle with a second-order loop of about 4 kHz comes closest to an ideal amplifier sampled at
+    # the start of the cycle: chi2/pt 2.4 at this noise)
+    assert fit[other][0] / fit["points"] > 2
     assert demo_machine.coil_current_sampling == "auto"
     machine, findings = with_coil_current_sampling(demo_machine, measured, "compare")
     assert machine.coil_current_sampling == sampling
@@ -207,6 +212,28 @@ def test_the_coil_current_sampling_is_taken_from_the_data(demo_machine, sampling
                                                          "parameters": {"cutoff_hz": cutoff_hz}}, "e")])), measured)
     errors = summarize(channel_errors(measured, model))
     assert errors[errors["output"] == "all"].iloc[0]["chi2"] < 1.3
+
+
+@pytest.mark.parametrize("sampling", ["cycle_average", "start_of_cycle"])
+def test_a_second_order_current_loop_is_not_read_as_the_other_convention(demo_machine, sampling):
+    """A second-order current loop (outside the library) lags like a first-order one plus part of a cycle: fitted with
+    first-order amplifiers alone, the independent rig's 2 kHz, damping 0.5 loop on averaged currents was read as
+    sampled at the start of the cycle.  With the second-order family both conventions are fitted fairly, the loop is
+    found, and a note says the library's first-order amplifier cannot follow it."""
+    from ambid.compare import sampled_chain, with_coil_current_sampling, _SecondOrderAmplifier
+
+    rng = np.random.default_rng(5)
+    chain = [_SecondOrderAmplifier(2000.0, 0.5)]
+    measured = {}
+    for axis in AXES:
+        values = sampled_chain(chain, 50e-6, F, sampling)
+        std = np.full(F.size, 1e-3)
+        measured[(f"I_{axis}", axis)] = (F, values + std * (rng.standard_normal(F.size) + 1j * rng.standard_normal(F.size))
+                                         / np.sqrt(2), std)
+    machine, findings = with_coil_current_sampling(demo_machine, measured, "compare")
+    assert machine.coil_current_sampling == sampling
+    loop = [f for f in findings if f.code == "coil_current_loop"]
+    assert len(loop) == 1 and "second-order current loop of 2000 Hz, damping ratio 0.5" in loop[0].message
 
 
 def test_coil_currents_that_do_not_tell_the_conventions_apart_keep_the_default(demo_machine):
