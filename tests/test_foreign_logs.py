@@ -14,9 +14,11 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
+from ambid.cli import check_log as check_log_lines
 from ambid.compare import for_run, measured_channels
 from ambid.diagnose import DiagnoseSettings, diagnose
 from ambid.diagnosis_report import diagnosis_report
@@ -95,6 +97,25 @@ def test_one_sensors_gain_is_unexplained_misfit_in_its_row(tmp_path):
     _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "sensor gain", repeated_steps=0)
     assert "no effect of the library brings positions output NX (all bands)" in page
     assert "Above the floor: positions output NX (all bands)" in page and "a gain error of the NX sensor" in page
+
+
+def test_a_log_without_coil_currents_is_diagnosed_from_its_positions(tmp_path):
+    """A logger that records positions and commands only (the independent rig's log with its coil-current columns
+    removed).  It is read, its FRF stage says what is lost, and the diagnosis names the delay from the positions, with
+    the amplifier and sensor lags it cannot tell apart without the currents named beside it."""
+    path, config = foreign_log(tmp_path, "demo20", [{"name": "delay", "delay_s": 3e-5}])
+    table = pd.read_csv(path)
+    positions = tmp_path / "positions.csv"
+    table[[c for c in table.columns if not c.startswith("I_")]].to_csv(positions, index=False)
+    assert any("no coil currents" in line for line in check_log_lines(positions, "table"))  # ambid check-log
+    frame, _ = read_log(positions, "table")
+    stage = stage_of_log(frame, CONFIG["frf"], str(positions))
+    assert [f.code for f in stage.findings] == ["no_coil_currents"]
+    assert not stage.table["output"].str.startswith("I_").any()
+    diagnosis, notes = diagnosed(positions, config)
+    assert notes == [] and [f.candidate.label for f in diagnosis.sequence] == ["delay"]
+    assert diagnosis.joint.table.set_index("parameter").loc["delay.delay_s", "value"] == pytest.approx(3e-5, rel=0.01)
+    assert {"amplifier_lowpass", "sensor_lowpass"} <= set(diagnosis.sequence[0].indistinguishable)
 
 
 def test_a_round_chosen_before_a_later_effect_was_in_the_model_is_revisited(tmp_path):

@@ -9,6 +9,7 @@ from ambid.errors import AmbidError, LogError
 from ambid.logs import (
     AXIAL_CHANNELS,
     CHANNELS,
+    COIL_CURRENT_CHANNELS,
     OPTIONAL_COLUMNS,
     RADIAL_CHANNELS,
     axis_channels,
@@ -301,6 +302,20 @@ class TestPartialChannelSets:
         steps = [{**s, "channels": CHANNELS[::-1], "coefficients": s["coefficients"][::-1], "noise_std": s["noise_std"][::-1]}
                  for s in make_steps()]
         pd.testing.assert_frame_equal(identification_frame(steps), identification_frame(make_steps()))
+
+    def test_coil_currents_are_optional_for_a_whole_log(self, tmp_path):
+        """A logger that records positions and commands only: no step carries a coil current.  Valid, and it
+        round-trips; a log whose coil currents stop on one step is refused, naming them."""
+        frame = identification_frame(make_steps(axes=ALL_AXES))
+        positions_only = frame[~frame["channel"].isin(COIL_CURRENT_CHANNELS)].reset_index(drop=True)
+        validate_identification_log(positions_only, "positions")
+        write_identification_log(positions_only, tmp_path / "log.parquet")
+        back, _ = read_identification_log(tmp_path / "log.parquet")
+        pd.testing.assert_frame_equal(back, positions_only)
+        gap = (frame["excited_axis"] == "NX") & (frame["step"] == 2) & frame["channel"].str.startswith("I_")
+        with pytest.raises(LogError, match=r"excited_axis=NX, step=2\): missing channel\(s\) I_upper_DX, .* the coil "
+                                           r"currents are, on every step or on none"):
+            validate_identification_log(frame[~gap].reset_index(drop=True), "run.parquet")
 
     @pytest.mark.parametrize(
         "drop, message",

@@ -234,7 +234,12 @@ def _summary_of_log(frame, provenance):
     else:
         warnings.append("no step repeated at a lower amplitude (column level): the FRF will be the describing function "
                         "at each step's excitation amplitude, the force law's amplitude-dependent error in it")
-    partial = [a for a in grids if frame.loc[frame["excited_axis"] == a, "channel"].nunique() < len(CHANNELS)]
+    coils = frame["channel"].str.startswith("I_").any()
+    if not coils:
+        warnings.append("no coil currents (I_upper, I_lower): the FRFs will be the positions' alone, and the diagnosis "
+                        "cannot tell an amplifier's lag from a sensor's or a delay")
+    expected = len(CHANNELS) if coils else len([c for c in CHANNELS if not c.startswith("I_")])
+    partial = [a for a in grids if frame.loc[frame["excited_axis"] == a, "channel"].nunique() < expected]
     if partial:
         warnings.append(f"steps of {', '.join(partial)} carry their own bearing's channels only: no FRF across bearings "
                         f"(e.g. Z/DX) from them")

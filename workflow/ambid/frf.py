@@ -28,7 +28,8 @@ import pandas as pd
 from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, pooled_noise, systematic_floor
-from .logs import CHANNELS, noise_from_scatter, repeated_steps
+from .findings import Finding
+from .logs import CHANNELS, COIL_CURRENT_CHANNELS, noise_from_scatter, repeated_steps
 from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
@@ -106,10 +107,13 @@ def current_etfe(arrays):
     dict
         ``(axis, axis) -> (frequency_hz, A, std)``; ``I = (I_upper - I_lower) / 2``
         with noise ``sqrt(s_upper^2 + s_lower^2) / 2``, propagated like `siso_etfe`.
+        A log without coil currents (`ambid.logs`: optional for a whole log) has no entry.
     """
     out = {}
     for excited, (frequency, coefficients, noise) in arrays.items():
         upper, lower = CHANNELS.index(f"I_upper_{excited}"), CHANNELS.index(f"I_lower_{excited}")
+        if np.isnan(coefficients[:, upper]).all():
+            continue
         u, su = coefficients[:, _u2(excited)], noise[:, _u2(excited)]
         current = 0.5 * (coefficients[:, upper] - coefficients[:, lower])
         s_current = 0.5 * np.hypot(noise[:, upper], noise[:, lower])
@@ -246,7 +250,8 @@ def frf_stage(frame, settings, log, source=None, source_lines=None, original=Non
 
     Where the log carries no noise estimate (``noise_std`` all 0: a thesis ``.m``, a user's table), each channel's
     noise from its scatter between neighbouring steps (`ambid.logs.noise_from_scatter`); the model-free checks
-    (`ambid.plausibility.check_log`: radial runs, outlier cells); then `frf_from_log` with the floor.
+    (`ambid.plausibility.check_log`: radial runs, outlier cells); then `frf_from_log` with the floor.  A log without
+    coil currents gets a ``no_coil_currents`` note.
 
     Parameters
     ----------
@@ -274,6 +279,11 @@ def frf_stage(frame, settings, log, source=None, source_lines=None, original=Non
         frame = noise_from_scatter(frame, source)
         scatter_noise = frame.groupby("channel")["noise_std"].first()
     frame, findings = check_log(frame, log_arrays(frame), settings, log, source_lines, original)
+    if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any():
+        findings.append(Finding("frf", "note", "no_coil_currents", "run",
+                                "the log carries no coil currents: the FRFs are the positions' alone, and the diagnosis "
+                                "cannot tell an amplifier's lag from a sensor's or a delay (they differ in the coil "
+                                "currents only); log I_upper and I_lower to tell them apart", 0.0))
     table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
     return FrfStage(table, floors, mimo, findings, scatter_noise, repeated_steps(frame))
 

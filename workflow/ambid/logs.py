@@ -8,7 +8,9 @@ the plant output ``V2_<axis>`` (measured position [m]) and the measured coil
 currents ``I_upper_<axis>`` and ``I_lower_<axis>`` [A].  A step carries at least
 the channels of its own bearing (`axis_channels`: the 16 radial channels when a
 radial axis is excited, the 4 axial ones when Z is), and either all or none of
-the other bearing's, the same on every step of an excited axis.  Complex
+the other bearing's, the same on every step of an excited axis.  The coil
+currents are optional for a whole log: every step carries its bearing's, or no
+step carries any (a logger that records positions and commands only).  Complex
 coefficients are stored as ``re`` / ``im`` columns in SI units, with the
 standard deviation ``noise_std`` of each coefficient.  `validate_identification_log` checks the
 contract on writing and on reading, so a malformed log fails with the rows at
@@ -45,6 +47,7 @@ __all__ = [
     "CHANNELS",
     "RADIAL_CHANNELS",
     "AXIAL_CHANNELS",
+    "COIL_CURRENT_CHANNELS",
     "axis_channels",
     "log_source",
     "repeated_steps",
@@ -80,6 +83,7 @@ CHANNELS = (
 )
 
 #: The channels of the radial bearings (DX, DY, NX, NY) and of the axial bearing (Z), in `CHANNELS` order.
+COIL_CURRENT_CHANNELS = tuple(name for name in CHANNELS if name.startswith("I_"))
 RADIAL_CHANNELS = tuple(name for name in CHANNELS if not name.endswith("_Z"))
 AXIAL_CHANNELS = tuple(name for name in CHANNELS if name.endswith("_Z"))
 
@@ -348,15 +352,19 @@ def _check_channel_sets(frame, sets, source):
     def rows(axis, step):
         return _where(frame, ((frame["excited_axis"] == axis) & (frame["step"] == step)).to_numpy())
 
+    # the coil currents are optional for a whole log: every step carries its bearing's, or no step carries any
+    coils = any(name in COIL_CURRENT_CHANNELS for channels in sets for name in channels)
     first_of_axis = {}
     for (axis, step, *_), channels in sets.items():
-        own = axis_channels(axis)
-        other = AXIAL_CHANNELS if own is RADIAL_CHANNELS else RADIAL_CHANNELS
+        own = tuple(name for name in axis_channels(axis) if coils or name not in COIL_CURRENT_CHANNELS)
+        other = AXIAL_CHANNELS if axis_channels(axis) is RADIAL_CHANNELS else RADIAL_CHANNELS
+        other = tuple(name for name in other if coils or name not in COIL_CURRENT_CHANNELS)
         absent = [name for name in own if name not in channels]
         if absent:
-            bearing = "axial" if own is AXIAL_CHANNELS else "radial"
+            bearing = "radial" if axis in RADIAL_AXES else "axial"
             raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(absent)} (a step exciting {axis} "
-                                   f"carries the {len(own)} {bearing} channels; the other bearing's are optional)")
+                                   f"carries the {len(own)} {bearing} channels; the other bearing's are optional, and "
+                                   "the coil currents are, on every step or on none)")
         partial = [name for name in other if name not in channels]
         if 0 < len(partial) < len(other):
             raise LogError(source, f"{rows(axis, step)}: missing channel(s) {', '.join(partial)} (the other bearing's "

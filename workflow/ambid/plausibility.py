@@ -141,7 +141,10 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
         rows.append({"check": "compliance", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
-        ratio = float(np.median(np.concatenate(amplifier)))
+        amplifier = np.concatenate(amplifier)
+        if np.isnan(amplifier).all():  # a log without coil currents (optional, `ambid.logs`)
+            continue
+        ratio = float(np.median(amplifier))
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
                     "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
