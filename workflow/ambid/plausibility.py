@@ -15,7 +15,11 @@ before it (`check_units`), so that the FRF does not depend on the model.
   negative stiffness, ``-ki/kx``, which a model knows to well within a factor
   of 30) and coil-current ratio ``|I/U2|`` (1 at low frequency) against the
   nominal model.  A factor of about 10^3 or 10^6 names the likely unit
-  (positions in um or mm, currents in mA, frequencies in kHz).
+  (positions in um or mm, currents in mA, frequencies in kHz).  The signs too:
+  below the flexible modes a log and its model differ by a lag of a few
+  degrees, so a compliance half a turn off is a channel of the other sign (a
+  sensor mounted the other way, another writer's axis direction), and a coil
+  current opposite to its command is upper and lower swapped.
 * **Outliers**: each channel's response to the excitation, ``c / amplitude``
   (a closed-loop transfer function, smooth in frequency), against the
   interpolation of its neighbours, in units of the larger of the logged noise
@@ -83,7 +87,8 @@ def _refuse(source, what, ratio, kind, detail, model_source):
 
 
 def check_units(arrays, plant, source, model_source="the machine file"):
-    """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more.
+    """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more, or
+    whose compliance or coil current has the other sign (half a turn of phase below 0.3 x the first flexible mode).
 
     Parameters
     ----------
@@ -124,7 +129,7 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         present = [a for a in axes if a in arrays]
         if not present or (axes == (AXIAL_AXIS,) and machine.axial_electromagnet is None):
             continue
-        compliance, amplifier = [], []
+        compliance, amplifier, flipped, swapped = [], [], [], []
         for axis in present:
             frequency, coefficients, _ = arrays[axis]
             low = frequency <= 0.3 * first_flexible_hz
@@ -135,12 +140,24 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             nominal = model(frequency[low])[:, axes.index(axis)]
             compliance.append(np.abs(v / u) / np.abs(nominal))
             amplifier.append(np.abs(coil / u))
+            # the sign: below the flexible modes a log and its model differ by a small lag, not half a turn
+            if np.median(np.cos(np.angle(v / u / nominal))) < 0:
+                flipped.append(axis)
+            if np.median(np.cos(np.angle(coil / u))) < 0:  # (NaN, and so never, without coil currents)
+                swapped.append(axis)
         names = ", ".join(present)
         ratio = float(np.median(np.concatenate(compliance)))
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
         rows.append({"check": "compliance", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+        if flipped:
+            channels = ", ".join(f"V2_{a} or U2_{a}" for a in flipped)
+            raise LogError(source, f"the compliance V2/U2 of {', '.join(flipped)} has the opposite sign of the nominal "
+                                   f"model's below {0.3 * first_flexible_hz:.0f} Hz (0.3 x its first flexible mode; its "
+                                   "phase is half a turn off, where a lag would be a few degrees): the sign of "
+                                   f"{channels} differs from the convention of {model_source} (a sensor mounted or "
+                                   "wired the other way, another writer's axis direction); negate that channel in the log")
         amplifier = np.concatenate(amplifier)
         if np.isnan(amplifier).all():  # a log without coil currents (optional, `ambid.logs`)
             continue
@@ -149,6 +166,11 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
                     "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
         rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+        if swapped:
+            channels = ", ".join(f"I_upper_{a} and I_lower_{a}" for a in swapped)
+            raise LogError(source, f"the coil current (I_upper - I_lower) / 2 of {', '.join(swapped)} runs opposite to its "
+                                   f"command U2 below {0.3 * first_flexible_hz:.0f} Hz (an amplifier follows its command): "
+                                   f"{channels} look swapped; swap them in the log")
     return rows
 
 
