@@ -170,7 +170,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             channels = ", ".join(f"I_upper_{a} and I_lower_{a}" for a in swapped)
             raise LogError(source, f"the coil current (I_upper - I_lower) / 2 of {', '.join(swapped)} runs opposite to its "
                                    f"command U2 below {0.3 * first_flexible_hz:.0f} Hz (an amplifier follows its command): "
-                                   f"{channels} look swapped; swap them in the log")
+                                   f"{channels} look swapped (or U2 and V2 of that axis both have the other sign, "
+                                   "which leaves the compliance's sign alone); swap them in the log")
     return rows
 
 
