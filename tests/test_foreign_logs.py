@@ -22,10 +22,12 @@ from ambid.cli import check_log as check_log_lines
 from ambid.compare import for_run, measured_channels
 from ambid.diagnose import DiagnoseSettings, diagnose
 from ambid.diagnosis_report import diagnosis_report
-from ambid.errors import settings_from_mapping
-from ambid.frf import frf_stage as stage_of_log
+from ambid.errors import LogError, settings_from_mapping
+from ambid.frf import frf_stage as stage_of_log, log_arrays
+from ambid.logs import noise_from_scatter
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
+from ambid.plausibility import check_units
 from ambid.readers import read_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,6 +118,19 @@ def test_a_log_without_coil_currents_is_diagnosed_from_its_positions(tmp_path):
     assert notes == [] and [f.candidate.label for f in diagnosis.sequence] == ["delay"]
     assert diagnosis.joint.table.set_index("parameter").loc["delay.delay_s", "value"] == pytest.approx(3e-5, rel=0.01)
     assert {"amplifier_lowpass", "sensor_lowpass"} <= set(diagnosis.sequence[0].indistinguishable)
+
+
+def test_another_writers_fourier_convention_is_refused(tmp_path):
+    """The independent rig's demo20 log with every coefficient complex conjugated (the transform's other sign
+    convention).  Its ideal amplifier, read as averaged over the cycle, gives the coil currents no lag to mirror;
+    the compliance's imaginary part has the other sign where the model's is resolved.  The plausibility check refuses
+    it; before, the diagnosis named element_stiffness with unexplained misfit."""
+    path, config = foreign_log(tmp_path, "demo20", [])
+    frame, _ = read_log(path, "table")
+    check_units(log_arrays(noise_from_scatter(frame, str(path))), Plant(machine_from_config(config)), str(path))
+    conjugated = noise_from_scatter(frame.assign(im=-frame["im"]), str(path))
+    with pytest.raises(LogError, match=r"imaginary part of the other sign .* complex conjugated"):
+        check_units(log_arrays(conjugated), Plant(machine_from_config(config)), str(path))
 
 
 def test_a_round_chosen_before_a_later_effect_was_in_the_model_is_revisited(tmp_path):

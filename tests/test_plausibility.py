@@ -86,6 +86,17 @@ class TestUnits:
         with pytest.raises(LogError, match=named):
             check_units(log_arrays(frame), demo_plant, SOURCE, "config/machines/demo20.yaml")
 
+    def test_complex_conjugated_coefficients_are_named(self, example, demo_plant):
+        """A writer with the other sign convention of the Fourier transform: every phase mirrored.  Magnitudes and
+        signs pass; the coil currents lead their commands, which an amplifier and the sampling never do (here, the
+        rig's elements 5-8 at half stiffness leave a third of the compliance's imaginary parts off the model's sign,
+        too few for that check; the independent rig's conjugated logs fail both, and gave element_stiffness named)."""
+        frame = example[0].copy()
+        frame["im"] = -frame["im"]
+        with pytest.raises(LogError, match=r"of DX, DY, NX, NY lead their commands U2 .* look complex conjugated .* "
+                                           r"negate every imaginary part"):
+            check_units(log_arrays(frame), demo_plant, SOURCE)
+
     def test_a_model_off_by_a_factor_of_three_passes(self, example, demo_plant):
         rows = check_units(log_arrays(scaled(example[0], ("V2_",), 3.0)), demo_plant, SOURCE)
         assert 2.5 < [r for r in rows if r["check"] == "compliance"][0]["ratio"] < 3.5

@@ -19,7 +19,10 @@ before it (`check_units`), so that the FRF does not depend on the model.
   below the flexible modes a log and its model differ by a lag of a few
   degrees, so a compliance half a turn off is a channel of the other sign (a
   sensor mounted the other way, another writer's axis direction), and a coil
-  current opposite to its command is upper and lower swapped.
+  current opposite to its command is upper and lower swapped.  Coil currents
+  that lead their commands over the upper half of the band (an amplifier and
+  the sampling only lag) are a log of complex conjugated coefficients (the
+  other sign convention of the Fourier transform).
 * **Outliers**: each channel's response to the excitation, ``c / amplitude``
   (a closed-loop transfer function, smooth in frequency), against the
   interpolation of its neighbours, in units of the larger of the logged noise
@@ -107,6 +110,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         One row per check passed: ``check`` (frequency / compliance / coil_current), ``axes``,
         ``ratio`` (log over nominal model) and ``below_hz`` (the band compared; NaN for frequencies).
     """
+    from .compare import model_response  # (compare reads the FRF stage, which runs this module's checks)
+
     machine = plant.machine
     rows = []
     for axes, grid in ((RADIAL_AXES, machine.radial_grid), ((AXIAL_AXIS,), machine.axial_grid)):
@@ -129,9 +134,18 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         present = [a for a in axes if a in arrays]
         if not present or (axes == (AXIAL_AXIS,) and machine.axial_electromagnet is None):
             continue
-        compliance, amplifier, flipped, swapped = [], [], [], []
+        compliance, amplifier, flipped, swapped, lead, damping_sign = [], [], [], [], [], []
         for axis in present:
             frequency, coefficients, _ = arrays[axis]
+            # where the model's compliance has an imaginary part (damping, lags) the log's has its sign
+            measured = coefficients[:, CHANNELS.index(f"V2_{axis}")] / coefficients[:, CHANNELS.index(f"U2_{axis}")]
+            expected = model_response(plant, {(axis, axis): (frequency,)})[(axis, axis)]  # the sampled chain's lags too
+            resolved = np.abs(expected.imag) > 0.1 * np.abs(expected)
+            damping_sign.append(np.sign(measured.imag[resolved]) == np.sign(expected.imag[resolved]))
+            upper = frequency >= np.median(frequency)
+            lead.append(np.angle(0.5 * (coefficients[upper, CHANNELS.index(f"I_upper_{axis}")]
+                                        - coefficients[upper, CHANNELS.index(f"I_lower_{axis}")])
+                                 / coefficients[upper, CHANNELS.index(f"U2_{axis}")]))
             low = frequency <= 0.3 * first_flexible_hz
             low = low if np.count_nonzero(low) >= 3 else np.ones_like(low)
             u = coefficients[low, CHANNELS.index(f"U2_{axis}")]
@@ -166,6 +180,21 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
                     "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
         rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
+        damping_sign = np.concatenate(damping_sign)
+        if damping_sign.size >= 10 and np.mean(damping_sign) < 0.2:
+            raise LogError(source, f"the compliance V2/U2 of {names} has the imaginary part of the other sign than the "
+                                   f"nominal model's at {100 * (1 - np.mean(damping_sign)):.0f} % of the "
+                                   f"{damping_sign.size} steps where the model's is at least a tenth of its magnitude "
+                                   "(damping and lags give it one sign; a model error shifts resonances, not that): the "
+                                   "log's Fourier coefficients look complex conjugated (the other sign convention of the "
+                                   "transform, e^(+j w t)); negate every imaginary part")
+        lead = np.concatenate(lead)
+        if np.median(lead) > 0 and np.mean(lead > 0) > 0.75:
+            raise LogError(source, f"the coil currents of {names} lead their commands U2 (median {np.degrees(np.median(lead)):+.2f} "
+                                   f"deg over the upper half of the band, {100 * np.mean(lead > 0):.0f} % of the steps), "
+                                   "where an amplifier and the sampling only lag: the log's Fourier coefficients look "
+                                   "complex conjugated (the other sign convention of the transform, e^(+j w t)); negate "
+                                   "every imaginary part")
         if swapped:
             channels = ", ".join(f"I_upper_{a} and I_lower_{a}" for a in swapped)
             raise LogError(source, f"the coil current (I_upper - I_lower) / 2 of {', '.join(swapped)} runs opposite to its "
