@@ -187,7 +187,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                                    f"{damping_sign.size} steps where the model's is at least a tenth of its magnitude "
                                    "(damping and lags give it one sign; a model error shifts resonances, not that): the "
                                    "log's Fourier coefficients look complex conjugated (the other sign convention of the "
-                                   "transform, e^(+j w t)); negate every imaginary part")
+                                   f"transform, e^(+j w t)); negate every imaginary part, unless the model ({model_source}) "
+                                   "is far off")
         lead = np.concatenate(lead)
         if np.median(lead) > 0 and np.mean(lead > 0) > 0.75:
             raise LogError(source, f"the coil currents of {names} lead their commands U2 (median {np.degrees(np.median(lead)):+.2f} "
