@@ -19,10 +19,12 @@ before it (`check_units`), so that the FRF does not depend on the model.
   below the flexible modes a log and its model differ by a lag of a few
   degrees, so a compliance half a turn off is a channel of the other sign (a
   sensor mounted the other way, another writer's axis direction), and a coil
-  current opposite to its command is upper and lower swapped.  Coil currents
-  that lead their commands over the upper half of the band (an amplifier and
-  the sampling only lag) are a log of complex conjugated coefficients (the
-  other sign convention of the Fourier transform).
+  current opposite to its command is upper and lower swapped.  A log of complex
+  conjugated coefficients (the other sign convention of the Fourier transform)
+  shows as a compliance whose imaginary part has the other sign of the model's
+  where that is resolved (damping and the loop's lags give it one sign), or as
+  coil currents that lead their commands over the upper half of the band (an
+  amplifier and the sampling only lag).
 * **Outliers**: each channel's response to the excitation, ``c / amplitude``
   (a closed-loop transfer function, smooth in frequency), against the
   interpolation of its neighbours, in units of the larger of the logged noise
@@ -172,14 +174,6 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                                    "phase is half a turn off, where a lag would be a few degrees): the sign of "
                                    f"{channels} differs from the convention of {model_source} (a sensor mounted or "
                                    "wired the other way, another writer's axis direction); negate that channel in the log")
-        amplifier = np.concatenate(amplifier)
-        if np.isnan(amplifier).all():  # a log without coil currents (optional, `ambid.logs`)
-            continue
-        ratio = float(np.median(amplifier))
-        if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
-            _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
-                    "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
-        rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
         damping_sign = np.concatenate(damping_sign)
         if damping_sign.size >= 10 and np.mean(damping_sign) < 0.2:
             raise LogError(source, f"the compliance V2/U2 of {names} has the imaginary part of the other sign than the "
@@ -189,6 +183,14 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                                    "log's Fourier coefficients look complex conjugated (the other sign convention of the "
                                    f"transform, e^(+j w t)); negate every imaginary part, unless the model ({model_source}) "
                                    "is far off")
+        amplifier = np.concatenate(amplifier)
+        if np.isnan(amplifier).all():  # a log without coil currents (optional, `ambid.logs`)
+            continue
+        ratio = float(np.median(amplifier))
+        if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
+            _refuse(source, f"the low-frequency coil-current ratio |I/U2| of {names}", ratio, "current",
+                    "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
+        rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
         lead = np.concatenate(lead)
         if np.median(lead) > 0 and np.mean(lead > 0) > 0.75:
             raise LogError(source, f"the coil currents of {names} lead their commands U2 (median {np.degrees(np.median(lead)):+.2f} "
