@@ -247,9 +247,10 @@ class _Cells:
 
     The selection reads the band cells alone (`above`), a partition that counts each point once, so a candidate's
     share of the excess is a share of the points' misfit; the rows are read in the verdict, as misfit the chosen
-    effects leave, in a family whose band cells are all within the floor (`frame`).  They do not choose: the per-axis `actuator_coefficients` absorb most of one sensor's gain (that
-    4 % NX gain: force constant NX 1.05, DX 1.03, bias current NX 0.97, the NX row to 0.98, DX's up from 0.5 to 0.96),
-    physics the library does not hold named as physics it does.
+    effects leave, in a family whose band cells are all within the floor (`frame`).  They do not choose: the per-axis
+    `actuator_coefficients` absorb most of one sensor's gain (that 4 % NX gain: force constant NX 1.05, DX 1.03, bias
+    current NX 0.97, the NX row to 0.98, DX's up from 0.5 to 0.96), physics the library does not hold named as
+    physics it does.
     """
 
     def __init__(self, measured, min_points=20):
