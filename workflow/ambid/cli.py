@@ -26,7 +26,7 @@ import yaml
 
 from .errors import AmbidError, ConfigError
 from .io import atomic_path
-from .logs import CHANNELS, noise_from_scatter, repeated_steps, write_identification_log
+from .logs import CHANNELS, COIL_CURRENT_CHANNELS, noise_from_scatter, repeated_steps, write_identification_log
 from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .readers import FORMATS, POSITION_UNITS, detect_format, read_log, read_uff_frf
 
@@ -234,11 +234,11 @@ def _summary_of_log(frame, provenance):
     else:
         warnings.append("no step repeated at a lower amplitude (column level): the FRF will be the describing function "
                         "at each step's excitation amplitude, the force law's amplitude-dependent error in it")
-    coils = frame["channel"].str.startswith("I_").any()
+    coils = frame["channel"].isin(COIL_CURRENT_CHANNELS).any()
     if not coils:
         warnings.append("no coil currents (I_upper, I_lower): the FRFs will be the positions' alone, and the diagnosis "
                         "cannot tell an amplifier's lag from a sensor's or a delay")
-    expected = len(CHANNELS) if coils else len([c for c in CHANNELS if not c.startswith("I_")])
+    expected = len(CHANNELS) - (0 if coils else len(COIL_CURRENT_CHANNELS))
     partial = [a for a in grids if frame.loc[frame["excited_axis"] == a, "channel"].nunique() < expected]
     if partial:
         warnings.append(f"steps of {', '.join(partial)} carry their own bearing's channels only: no FRF across bearings "
