@@ -277,10 +277,15 @@ def uff_options(wildcards):
 
 
 def frf_input(wildcards):
-    """The FRF stage's input: the canonical log, or a run's UFF58 FRFs (format uff)."""
+    """The FRF stage's input: the canonical log (stepped sine or multisine), or a run's UFF58 FRFs (format uff)."""
     if RUNS[(wildcards.machine, wildcards.run)].get("format") == "uff":
         return {"uff": user_log_file(wildcards)}
-    return {"log": f"data/{wildcards.machine}/{wildcards.run}/identification.parquet"}
+    return {"log": identification_log(wildcards.machine, wildcards.run)}
+
+
+def run_method(wildcards):
+    """The identification method of a run: ``stepped_sine`` or ``multisine``."""
+    return RUNS[(wildcards.machine, wildcards.run)].get("method", "stepped_sine")
 
 
 def log_source(wildcards):
@@ -355,6 +360,7 @@ FRF_OUTPUTS = [
     "figures/axial.png",
 ]
 MULTISINE_FRF_OUTPUTS = [
+    "plausibility.tsv",
     "frf.parquet",
     "frf.uff",
     "distortion.tsv",

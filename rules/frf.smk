@@ -4,7 +4,8 @@
 
 rule plausibility:
     # the log against the nominal model, before the FRF (ambid.plausibility.check_units): frequencies, compliance and
-    # coil currents within 30x of the model, or one error naming the likely unit
+    # coil currents within 30x of the model and of its sign, or one error naming the likely unit or channel; a
+    # multisine run through its BLA, a run's UFF58 FRFs as they are (ambid.plausibility.frf_arrays)
     input:
         unpack(frf_input),
         machine=machine_model_file,
@@ -24,9 +25,11 @@ rule plausibility:
     params:
         machine_config=machine_config,
         source=log_source,
+        method=run_method,
+        uff_options=uff_options,
         library=LIBRARY_DIGEST,
     message:
-        "{wildcards.machine} {wildcards.run}: the log against the nominal model (frequency, position and current units)"
+        "{wildcards.machine} {wildcards.run}: the log against the nominal model (frequency, position and current units, signs)"
     script:
         "../workflow/scripts/plausibility.py"
 
@@ -75,6 +78,7 @@ rule bla:
     # a multisine run: best linear approximation with its noise and nonlinear distortion (Pintelon & Schoukens)
     input:
         log="data/{machine}/{run}/multisine.parquet",
+        plausibility="results/{machine}/frf/{run}/plausibility.tsv",
     output:
         frf="results/{machine}/frf/{run}/frf.parquet",
         uff="results/{machine}/frf/{run}/frf.uff",

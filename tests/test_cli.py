@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -14,7 +15,7 @@ import yaml
 from ambid.cli import add_run, check_log, import_log, main, new_machine
 from ambid.errors import ConfigError, LogError
 from ambid.io import read_parquet
-from ambid.logs import identification_frame
+from ambid.logs import CHANNELS, identification_frame, multisine_frame, write_multisine_log
 from ambid.machine import ALL_AXES, machine_from_config
 from ambid.uff import frf_channels, write_uff58
 from conftest import ROOT
@@ -142,6 +143,24 @@ class TestCheckLog:
         write_uff58(tmp_path / "f.uff", frf_channels(frf_of(identification_frame(make_steps(axes=ALL_AXES, n_steps=5)))))
         text = "\n".join(check_log(tmp_path / "f.uff"))
         assert "FRFs (UFF58), estimator(s) current, mimo, siso" in text and re.search(r"^mimo\s+NY/DX\s+5\s+10-110 Hz", text, re.M)
+
+    def test_multisine_log(self, tmp_path):
+        """A multisine log is summarized per pass (it was refused as 'holds multisine_log'); without coil currents too."""
+        rng = np.random.default_rng(1)
+        lines = np.arange(1, 11)
+        spectra = rng.standard_normal((1, 4, 3, len(CHANNELS), lines.size)) + 1j  # R x E x P, channels, lines
+        reference = np.exp(2j * np.pi * rng.random((1, 4, len(ALL_AXES), lines.size)))
+        frame = multisine_frame([{"name": "coarse", "lines": lines, "frequency_hz": 10.0 * lines,
+                                  "role": np.full(lines.size, "excited"), "spectra": spectra, "reference": reference}])
+        write_multisine_log(frame, tmp_path / "ms.parquet", {"design": "orthogonal"})
+        text = "\n".join(check_log(tmp_path / "ms.parquet"))
+        assert re.search(r"^coarse\s+10\s+10-100 Hz\s+10\s+1 x 4 x 3\s+1$", text, re.M), text
+        assert "axes excited: DX, DY, NX, NY, Z" in text and "I [A]: upper_DX" in text
+        assert "no nonlinear-distortion estimate" in text and "no detection lines" in text
+        assert "no coil currents" not in text
+        write_multisine_log(frame[~frame["channel"].str.startswith("I_")], tmp_path / "without.parquet")
+        text = "\n".join(check_log(tmp_path / "without.parquet"))
+        assert "I [A]" not in text and "no coil currents (I_upper, I_lower): no coil-current FRF" in text
 
     def test_command_line_errors(self, tmp_path, capsys):
         (tmp_path / "log.m").write_text("data_exc_dx = [1 2 pi];\n")

@@ -18,6 +18,7 @@ from ambid.multisine import (MultisineSettings, crest_factor, design_multisine, 
                              multisine_settings_from_config, orthogonal_matrix, pass_record, reduce_crest_factor,
                              run_multisine, _waveform)
 from ambid.plant import Plant
+from ambid.plausibility import check_units, frf_arrays
 from ambid.rig import RigModel, rig_from_config
 from ambid.zoom import band_lines, outside_bands, zoom_bands
 
@@ -286,6 +287,28 @@ class TestLog:
         assert len(passes) == 1 and passes[0]["spectra"].shape[:3] == (2, 4, 2)
         assert set(frame["channel"]) == set(CHANNELS + REFERENCE_CHANNELS)
 
+    def test_a_log_without_coil_currents(self, small_log, tmp_path):
+        """A logger that records positions and commands only: the coil currents are optional for a whole log (as in a
+        stepped-sine log), the BLA has no coil-current FRF and the excitation level takes U2 in their place; one
+        missing coil channel is still an incomplete log."""
+        coils = small_log["channel"].str.startswith("I_")
+        without = small_log[~coils].reset_index(drop=True)
+        write_multisine_log(without, tmp_path / "multisine.parquet")
+        frame, _ = read_multisine_log(tmp_path / "multisine.parquet")
+        passes = multisine_passes(frame)
+        table, estimates = multisine_frf(passes)
+        full, _ = multisine_frf(multisine_passes(small_log))
+        assert "current" not in set(table["estimator"]) and "current" in set(full["estimator"])
+        plant = full[full["estimator"] != "current"].reset_index(drop=True)
+        assert_allclose(table[["re", "im", "std"]].to_numpy(), plant[["re", "im", "std"]].to_numpy())
+        level = excitation_covariance(passes[0]["spectra"], passes[0]["reference"])
+        u2 = np.mean(np.sum(np.abs(passes[0]["spectra"][:, :, :, CHANNELS.index("U2_DX")]) ** 2, axis=-1)) / 2
+        assert level["DX"][0] == pytest.approx(u2)
+        assert level["DX"][1] == pytest.approx(excitation_covariance(*(
+            lambda p: (p["spectra"], p["reference"]))(multisine_passes(small_log)[0]))["DX"][1])
+        with pytest.raises(LogError, match="lacks channel\\(s\\) I_upper_DX"):
+            validate_multisine_log(small_log[small_log["channel"] != "I_upper_DX"].reset_index(drop=True), "m.parquet")
+
     def broken(self, frame, change):
         frame = frame.copy()
         result = change(frame)
@@ -312,6 +335,37 @@ class TestLog:
             validate_multisine_log(self.broken(small_log, change), "data/m/r/multisine.parquet")
         assert "data/m/r/multisine.parquet" in str(error.value)
         assert "row" in str(error.value) or "pass" in str(error.value)
+
+
+class TestPlausibility:
+    """A multisine log against the nominal model as a stepped-sine log is (`ambid.plausibility.check_units` through
+    its BLA, `ambid.plausibility.frf_arrays`): before, rule bla read it unchecked."""
+
+    def checked(self, frame, plant):
+        table, _ = multisine_frf(multisine_passes(frame))
+        return check_units(frf_arrays(table), plant, "data/demo20/ms/multisine.parquet")
+
+    def test_the_log_is_plausible(self, small_log, demo_plant):
+        ratios = {(r["check"], r["axes"]): r["ratio"] for r in self.checked(small_log, demo_plant)}
+        assert {("compliance", "DX DY NX NY"), ("coil_current", "DX DY NX NY"), ("compliance", "Z")} <= set(ratios)
+        assert all(0.5 < ratio < 2 for ratio in ratios.values()), ratios
+
+    @staticmethod
+    def scaled(frame, chosen, factor):
+        frame.loc[chosen, ["re", "im"]] *= factor
+        return frame
+
+    @pytest.mark.parametrize("edit, named", [
+        (lambda f: TestPlausibility.scaled(f, f["channel"].str.startswith("V2_"), 1e6), "positions look like um"),
+        (lambda f: TestPlausibility.scaled(f, f["channel"] == "V2_NX", -1.0), "the compliance V2/U2 of NX has the opposite"),
+        (lambda f: f.assign(channel=f["channel"].replace({"I_upper_DY": "I_lower_DY", "I_lower_DY": "I_upper_DY"})),
+         "I_upper_DY and I_lower_DY look swapped"),
+        (lambda f: f.assign(im=-f["im"]), "look complex conjugated"),
+    ])
+    def test_a_unit_sign_or_convention_error_is_named(self, small_log, demo_plant, edit, named):
+        with pytest.raises(LogError, match=named) as error:
+            self.checked(edit(small_log.copy()), demo_plant)
+        assert str(error.value).startswith("data/demo20/ms/multisine.parquet")
 
 
 def test_identification_with_zoom_on_the_nonlinear_rig(demo_plant, demo_rig):

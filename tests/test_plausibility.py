@@ -4,10 +4,12 @@ import numpy as np
 import pytest
 
 from ambid.errors import LogError
-from ambid.frf import log_arrays
+from ambid.frf import current_etfe, frf_table, log_arrays, mimo_etfe, siso_etfe
 from ambid.logs import CHANNELS, noise_from_scatter
 from ambid.mfile import read_thesis_m
-from ambid.plausibility import _scores, check_log, check_units, find_outliers
+from ambid.plausibility import _scores, check_log, check_units, find_outliers, frf_arrays
+from ambid.readers import read_uff_frf
+from ambid.uff import frf_channels, write_uff58
 
 from conftest import ROOT
 
@@ -100,6 +102,44 @@ class TestUnits:
     def test_a_model_off_by_a_factor_of_three_passes(self, example, demo_plant):
         rows = check_units(log_arrays(scaled(example[0], ("V2_",), 3.0)), demo_plant, SOURCE)
         assert 2.5 < [r for r in rows if r["check"] == "compliance"][0]["ratio"] < 3.5
+
+
+@pytest.fixture(scope="module")
+def channels(example):
+    """The example log's FRFs as `ambid.uff.frf_channels` (every kind: SISO, MIMO, coil current)."""
+    arrays = log_arrays(example[0])
+    return list(frf_channels(frf_table(siso_etfe(arrays), mimo_etfe(arrays), current=current_etfe(arrays))))
+
+
+class TestFrfsWithoutALog:
+    """A user's UFF58 FRFs (no raw log) are checked as a log is, through `frf_arrays`: before, they went unchecked."""
+
+    def written(self, channels, path, change=lambda estimator, output, values: values):
+        write_uff58(path, [(e, o, i, f, change(e, o, v)) for e, o, i, f, v in channels], description="analyser")
+        return read_uff_frf(path)[0]
+
+    def test_the_example_frfs_are_plausible(self, channels, demo_plant, tmp_path):
+        table = self.written(channels, tmp_path / "frf.uff")
+        rows = check_units(frf_arrays(table), demo_plant, "frf.uff")
+        ratios = {(r["check"], r["axes"]): r["ratio"] for r in rows}
+        assert set(ratios) == {(c, a) for c in ("compliance", "coil_current") for a in ("DX DY NX NY", "Z")} | {
+            ("frequency", "DX DY NX NY"), ("frequency", "Z")}
+        assert all(0.5 < ratio < 2 for ratio in ratios.values()), ratios
+
+    def test_without_coil_current_frfs_the_rest_is_checked(self, channels, demo_plant, tmp_path):
+        table = self.written([c for c in channels if c[0] != "current"], tmp_path / "frf.uff")
+        assert {r["check"] for r in check_units(frf_arrays(table), demo_plant, "frf.uff")} == {"frequency", "compliance"}
+
+    @pytest.mark.parametrize("change, named", [
+        (lambda e, o, v: v * 1e6 if e != "current" else v, "positions look like um"),  # labelled m, holding um
+        (lambda e, o, v: -v if o == "NX" and e != "current" else v, "the compliance V2/U2 of NX has the opposite sign"),
+        (lambda e, o, v: np.conj(v), "look complex conjugated"),
+    ])
+    def test_a_unit_sign_or_convention_error_is_named(self, channels, demo_plant, tmp_path, change, named):
+        table = self.written(channels, tmp_path / "frf.uff", change)
+        with pytest.raises(LogError, match=named) as error:
+            check_units(frf_arrays(table), demo_plant, str(tmp_path / "frf.uff"))
+        assert str(error.value).startswith(str(tmp_path / "frf.uff"))
 
 
 class TestAxes:

@@ -54,7 +54,7 @@ import pandas as pd
 from .errors import LogError
 from .floor import band_labels, frequency_bands, pool_variance
 from .frf import frf_table
-from .logs import CHANNELS
+from .logs import CHANNELS, COIL_CURRENT_CHANNELS
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 from .zoom import outside_bands
 
@@ -254,8 +254,12 @@ def group_bla(spectra, reference, excites, frequency_hz, axes, noise_half_width=
     levels = realization_levels(reference)
     estimates, noise, condition = _per_realization(u, v, noise_half_width)
     plant, noise_var, distortion_var, systematic_var = _combine(estimates, noise, levels)
-    estimates, noise, _ = _per_realization(u, current, noise_half_width)
-    amplifier, current_noise_var, current_distortion_var, current_systematic_var = _combine(estimates, noise, levels)
+    if np.isfinite(current).all():
+        estimates, noise, _ = _per_realization(u, current, noise_half_width)
+        amplifier, current_noise_var, current_distortion_var, current_systematic_var = _combine(estimates, noise, levels)
+    else:  # a log without coil currents
+        amplifier = np.full(plant.shape, np.nan + 0j)
+        current_noise_var = current_distortion_var = current_systematic_var = np.full(plant.shape, np.nan)
     condition = np.median(condition[levels >= 1.0 - 1e-9], axis=0)
     # measured dynamic compliance E_u -> V2: the positions against the reference excitation
     r = reference[:, :, index][..., lines]  # (R, E, n, L)
@@ -363,10 +367,12 @@ def multisine_passes(frame):
     list of dict
         ``name``, ``lines``, ``frequency_hz``, ``role`` (L,), ``excites`` (L, 5:
         axes whose reference is non-zero), ``spectra`` (R, E, P, 20, L) and
-        ``reference`` (R, E, 5, L), as `ambid.logs.multisine_frame` takes them.
+        ``reference`` (R, E, 5, L), as `ambid.logs.multisine_frame` takes them;
+        the coil currents NaN in a log without them (`ambid.logs.COIL_CURRENT_CHANNELS`, optional for a whole log).
     """
     names = list(CHANNELS) + [f"E_{a}" for a in ALL_AXES]
     index = {name: k for k, name in enumerate(names)}
+    absent = [index[name] for name in COIL_CURRENT_CHANNELS] if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any() else []
     out = []
     for name, group in frame.groupby("pass", sort=False):
         realizations = np.sort(group["realization"].unique())
@@ -374,6 +380,7 @@ def multisine_passes(frame):
         periods = np.sort(group["period"].unique())
         lines = np.sort(group["line"].unique())
         values = np.zeros((realizations.size, experiments.size, periods.size, len(names), lines.size), dtype=complex)
+        values[:, :, :, absent] = np.nan
         values[np.searchsorted(realizations, group["realization"].to_numpy()),
                np.searchsorted(experiments, group["experiment"].to_numpy()),
                np.searchsorted(periods, group["period"].to_numpy()),
@@ -433,7 +440,7 @@ def bla_frf_table(radial, axial, siso=None):
         siso_noise[(output, input_axis)] = (f, g, noise)
         siso_distortion[(output, input_axis)] = (f, g, distortion)
     groups = [g for g in (radial, axial) if g is not None]
-    for group in groups:
+    for group in (g for g in groups if np.isfinite(g.current).any()):  # (none from a log without coil currents)
         for k, axis in enumerate(group.axes):
             current_noise[(axis, axis)] = (group.frequency_hz, group.current[:, k, k], group.current_noise_std[:, k, k])
             current_distortion[(axis, axis)] = (group.frequency_hz, group.current[:, k, k],
@@ -514,7 +521,9 @@ def excitation_covariance(spectra, reference):
     and their covariance, over the top level's realizations and experiments, summed over the stored lines.
 
     What the force law is averaged over during the run (`ambid.effects.at_excitation_level`): the per-period spectra
-    are complex amplitudes, so a line contributes ``|c|^2 / 2`` (``Re(c conj(v)) / 2``).
+    are complex amplitudes, so a line contributes ``|c|^2 / 2`` (``Re(c conj(v)) / 2``).  A log without coil currents
+    has the control current U2 in their place: an amplifier follows its command, gain 1, below its bandwidth, where
+    the excitation's power lies.
 
     Parameters
     ----------
@@ -534,6 +543,8 @@ def excitation_covariance(spectra, reference):
     out = {}
     for axis in ALL_AXES:
         coil = 0.5 * (part[:, :, :, _UPPER[axis]] - part[:, :, :, _LOWER[axis]])
+        if not np.isfinite(coil).all():  # a log without coil currents
+            coil = part[:, :, :, _U2[axis]]
         position = part[:, :, :, _V2[axis]]
         out[axis] = [moment(coil, coil), moment(position, position), moment(coil, position)]
     return out

@@ -26,7 +26,9 @@ import yaml
 
 from .errors import AmbidError, ConfigError
 from .io import atomic_path
-from .logs import CHANNELS, COIL_CURRENT_CHANNELS, noise_from_scatter, repeated_steps, write_identification_log
+from .bla import multisine_passes, realization_levels
+from .logs import (CHANNELS, COIL_CURRENT_CHANNELS, is_multisine_log, noise_from_scatter, read_multisine_log,
+                   repeated_steps, write_identification_log)
 from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .readers import FORMATS, POSITION_UNITS, detect_format, read_log, read_uff_frf
 
@@ -258,9 +260,60 @@ def _summary_of_frf(table, provenance):
     return lines
 
 
+def _summary_of_multisine(frame, info, path):
+    passes = multisine_passes(frame)
+    design = info["metadata"].get("design", "orthogonal")
+    lines = [f"{path}: multisine log, design {design}",
+             f"{'pass':<8}{'lines':>6}  {'frequency band':<24}{'f0 [Hz]':<10}{'R x E x P':<11}levels"]
+    warnings = []
+    for item in passes:
+        realizations, experiments, periods = item["spectra"].shape[:3]
+        excited = item["role"] == "excited"
+        levels = np.unique(np.round(realization_levels(item["reference"]), 6))
+        band = item["frequency_hz"][excited]
+        records = f"{realizations} x {experiments} x {periods}"
+        lines.append(f"{item['name']:<8}{band.size:>6}  {f'{band.min():.4g}-{band.max():.4g} Hz':<24}"
+                     f"{item['frequency_hz'][0] / item['lines'][0]:<10.4g}{records:<11}{', '.join(f'{v:.3g}' for v in levels)}")
+    coarse = passes[0]
+    excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
+    lines.append(f"axes excited: {', '.join(excited_axes)}")
+    # the noise of one period's coefficient, from the scatter between periods (what the BLA's noise is made of)
+    scatter = np.std(coarse["spectra"], axis=2, ddof=1)  # (R, E, 20, L)
+    present = np.isfinite(scatter).all(axis=(0, 1, 3))  # (no coil currents: NaN)
+    spread = np.full(len(CHANNELS), np.nan)
+    spread[present] = np.median(scatter[:, :, present], axis=(0, 1, 3))
+    lines.append("noise (scatter between periods, median per channel and line):")
+    for prefix, scale, unit in (("V2_", 1e6, "um"), ("U2_", 1.0, "A"), ("I_", 1.0, "A")):
+        values = [f"{c.removeprefix(prefix)} {spread[k] * scale:.3g}" for k, c in enumerate(CHANNELS)
+                  if c.startswith(prefix) and np.isfinite(spread[k])]
+        if values:
+            lines.append(f"  {prefix.rstrip('_')} [{unit}]: {', '.join(values)}")
+    if not all(a in excited_axes for a in RADIAL_AXES):
+        warnings.append(f"radial axes excited: {', '.join(a for a in RADIAL_AXES if a in excited_axes) or 'none'}: no "
+                        "MIMO estimate (needs DX, DY, NX, NY)")
+    if "Z" not in excited_axes:
+        warnings.append("Z not excited: no axial FRF")
+    if coarse["spectra"].shape[0] < 2 and len(np.unique(np.round(realization_levels(coarse["reference"]), 6))) < 2:
+        warnings.append("one realization at one level: no nonlinear-distortion estimate (the BLA's systematic_std is NaN)")
+    if not (coarse["role"] != "excited").any():
+        warnings.append("no detection lines: no odd and even distortion levels")
+    if not np.isfinite(coarse["spectra"]).all():
+        warnings.append("no coil currents (I_upper, I_lower): no coil-current FRF, the excitation level from U2 in their "
+                        "place, and the diagnosis cannot tell an amplifier's lag from a sensor's or a delay")
+    lines.append("warnings:" if warnings else "warnings: none")
+    lines += [f"  - {w}" for w in warnings]
+    return lines
+
+
 def check_log(path, format=None, position_unit=None, current_unit=None, estimator=None):
-    """What a log holds, as lines of text (axes, grid, amplitudes, noise, warnings); raises on an invalid log."""
+    """What a log holds, as lines of text (axes, grid, amplitudes, noise, warnings); raises on an invalid log.
+
+    A multisine log (`ambid.logs.MULTISINE_KIND`) is summarized per pass: lines, band, realizations x experiments x
+    periods, levels, the noise from the scatter between periods."""
     format = format or detect_format(path)
+    if format == "parquet" and is_multisine_log(path):
+        frame, info = read_multisine_log(path)
+        return _summary_of_multisine(frame, info, path)
     if format == "uff":
         options = {k: v for k, v in (("estimator", estimator), ("position_unit", position_unit),
                                      ("current_unit", current_unit)) if v}

@@ -474,7 +474,7 @@ def at_run_level(machine, frf_metadata, stage):
     A multisine's BLA is the bearing linearized at the mean of the force law
     over the run's currents and positions (`ambid.effects.at_excitation_level`);
     its FRF stage records their covariance (``excitation_covariance``,
-    `ambid.bla.excitation_covariance`).  Runs without it (stepped sine: its FRF is
+    `ambid.bla.excitation_covariance`; ``excitation_current`` ``U2`` where the log has no coil currents).  Runs without it (stepped sine: its FRF is
     taken to zero amplitude instead, `ambid.amplitude`) keep the machine as it is.
 
     Returns
@@ -490,8 +490,11 @@ def at_run_level(machine, frf_metadata, stage):
     before, after = Plant(machine), Plant(shifted)
     kx = after.position_stiffness / before.position_stiffness
     ki = after.current_stiffness / before.current_stiffness
-    message = ("the model is linearized at the run's excitation level (thesis eq. 3.6 averaged over the logged coil "
-               "currents and positions): position stiffness x " + ", ".join(f"{a} {f:.4f}" for a, f in zip(RADIAL_AXES, kx))
+    currents = ("logged coil currents" if frf_metadata.get("excitation_current", "coil") == "coil" else
+                "logged control currents U2, as the log has no coil currents (above the amplifiers' bandwidth U2 "
+                "overstates them, and so the shift)")
+    message = (f"the model is linearized at the run's excitation level (thesis eq. 3.6 averaged over the {currents} "
+               "and positions): position stiffness x " + ", ".join(f"{a} {f:.4f}" for a, f in zip(RADIAL_AXES, kx))
                + "; current stiffness x " + ", ".join(f"{a} {f:.4f}" for a, f in zip(RADIAL_AXES, ki)))
     return shifted, [Finding(stage, "note", "excitation_level", "bearings", message, float(np.max(np.abs(kx - 1))))]
 

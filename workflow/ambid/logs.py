@@ -38,6 +38,8 @@ the rows with their pass, realization, experiment and period.
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from .errors import LogError
 from .io import read_parquet, write_parquet
@@ -70,6 +72,7 @@ __all__ = [
     "multisine_frame",
     "write_multisine_log",
     "read_multisine_log",
+    "is_multisine_log",
     "validate_multisine_log",
 ]
 
@@ -655,6 +658,15 @@ def write_multisine_log(frame, path, metadata=None):
                   kind=MULTISINE_KIND, metadata={**(metadata or {}), "channel_units": channel_units})
 
 
+def is_multisine_log(path):
+    """Whether a Parquet file written by ambid holds a multisine log (its ``ambid.kind``), without reading its rows."""
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except (OSError, pa.ArrowInvalid) as error:
+        raise LogError(str(path), f"not a readable Parquet file ({error})") from None
+    return metadata.get(b"ambid.kind", b"").decode() == MULTISINE_KIND
+
+
 def read_multisine_log(path):
     """Read and validate a multisine log; returns ``(frame, info)`` as `read_identification_log`."""
     frame, info = read_parquet(path, kind=MULTISINE_KIND)
@@ -702,7 +714,7 @@ def validate_multisine_log(frame, source):
         value is not finite; an index is negative, ``line < 1`` or
         ``frequency_hz <= 0``; a pass' lines are not harmonics of one ``f0``
         (``frequency_hz / line`` constant); a row is duplicated or a (record,
-        line) lacks a channel; the records of a pass differ in their lines or
+        line) lacks a channel (the coil currents ``I_*`` may be absent from the whole log); the records of a pass differ in their lines or
         periods, a pass has fewer than 2 periods (no noise estimate) or an
         incomplete realization x experiment grid; a line's role differs
         between records; a reference channel changes between periods; an
@@ -715,6 +727,8 @@ def validate_multisine_log(frame, source):
         raise LogError(source, "no rows (a multisine log holds at least one pass)")
     known = CHANNELS + REFERENCE_CHANNELS
     _fail(frame, ~frame["channel"].isin(known).to_numpy(), source, f"unknown channel; known: {', '.join(known)}")
+    if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any():  # the coil currents are optional for a whole log
+        known = tuple(name for name in known if name not in COIL_CURRENT_CHANNELS)
     _fail(frame, ~frame["role"].isin(LINE_ROLES).to_numpy(), source, f"unknown role; known: {', '.join(LINE_ROLES)}")
     for name in ("frequency_hz", "re", "im"):
         _fail(frame, ~np.isfinite(frame[name].to_numpy(dtype=float)), source, f"{name} is not finite")

@@ -47,8 +47,8 @@ from .machine import AXIAL_AXIS, RADIAL_AXES
 from .mfile import THESIS_COLUMNS, _LAYOUT, variable_name
 from .plant import RIGID_MODES
 
-__all__ = ["FRF_SETTINGS", "Outlier", "check_axes", "check_units", "find_outliers", "outlier_text", "exclude_outliers",
-           "check_log"]
+__all__ = ["FRF_SETTINGS", "Outlier", "check_axes", "check_units", "frf_arrays", "find_outliers", "outlier_text",
+           "exclude_outliers", "check_log"]
 
 #: Defaults of the ``frf:`` config section.
 FRF_SETTINGS = {"estimator": "mimo", "outliers": "refuse", "outlier_threshold": 100.0}
@@ -91,6 +91,51 @@ def _refuse(source, what, ratio, kind, detail, model_source):
                            f"({model_source}) is off by as much")
 
 
+def frf_arrays(table):
+    """An FRF table as `check_units` reads a log: per axis, one unit command ``U2 = 1`` per frequency.
+
+    For FRFs without a raw log behind them in the workflow's order: a multisine
+    run's BLA (`ambid.bla.multisine_frf`) and a user's UFF58 FRFs
+    (`ambid.readers.read_uff_frf`).  ``V2`` is the axis' compliance (the MIMO
+    diagonal where the table has it, else the SISO ratio) and the coil current
+    ``(I_upper - I_lower) / 2`` its coil-current FRF (interpolated onto the
+    compliance's frequencies, NaN outside its range or where the table has
+    none), so every check of `check_units` reads them as it reads a log's steps.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        `ambid.frf.frf_table` columns.
+
+    Returns
+    -------
+    dict
+        As `ambid.frf.log_arrays`: axis -> (frequencies (n,), coefficients (n, 20), noise (n, 20), NaN).
+    """
+    from .frf import channel  # (the FRF stage runs this module's checks)
+
+    out = {}
+    for axis in (*RADIAL_AXES, AXIAL_AXIS):
+        frequency, compliance, _ = channel(table, "mimo", axis, axis)
+        if frequency.size == 0:
+            frequency, compliance, _ = channel(table, "siso", axis, axis)
+        if frequency.size == 0:
+            continue
+        coefficients = np.full((frequency.size, len(CHANNELS)), np.nan, dtype=complex)
+        coefficients[:, CHANNELS.index(f"U2_{axis}")] = 1.0
+        coefficients[:, CHANNELS.index(f"V2_{axis}")] = compliance
+        current_hz, current, _ = channel(table, "current", axis, axis)
+        if current_hz.size >= 2:
+            inside = (frequency >= current_hz[0]) & (frequency <= current_hz[-1])
+            coil = np.full(frequency.size, np.nan, dtype=complex)
+            coil[inside] = (np.interp(frequency[inside], current_hz, current.real)
+                            + 1j * np.interp(frequency[inside], current_hz, current.imag))
+            coefficients[:, CHANNELS.index(f"I_upper_{axis}")] = coil
+            coefficients[:, CHANNELS.index(f"I_lower_{axis}")] = -coil
+        out[axis] = (frequency, coefficients, np.full(coefficients.shape, np.nan))
+    return out
+
+
 def check_units(arrays, plant, source, model_source="the machine file"):
     """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more, or
     whose compliance or coil current has the other sign (half a turn of phase below 0.3 x the first flexible mode).
@@ -98,7 +143,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
     Parameters
     ----------
     arrays : dict
-        `ambid.frf.log_arrays` of the log.
+        `ambid.frf.log_arrays` of the log, or `frf_arrays` of FRFs without a raw log in the workflow (a
+        multisine run's BLA, a user's UFF58 FRFs); their frequencies count as steps in the messages.
     plant : ambid.plant.Plant
         The nominal model (machine file): its identification grids, its first
         flexible mode, its low-frequency compliance.
@@ -159,7 +205,9 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             # the sign: below the flexible modes a log and its model differ by a small lag, not half a turn
             if np.median(np.cos(np.angle(v / u / nominal))) < 0:
                 flipped.append(axis)
-            if np.median(np.cos(np.angle(coil / u))) < 0:  # (NaN, and so never, without coil currents)
+            coil_sign = np.cos(np.angle(coil / u))
+            coil_sign = coil_sign[np.isfinite(coil_sign)]  # (none without coil currents)
+            if coil_sign.size and np.median(coil_sign) < 0:
                 swapped.append(axis)
         names = ", ".join(present)
         ratio = float(np.median(np.concatenate(compliance)))
@@ -184,7 +232,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                                    f"transform, e^(+j w t)); negate every imaginary part, unless the model ({model_source}) "
                                    "is far off")
         amplifier = np.concatenate(amplifier)
-        if np.isnan(amplifier).all():  # a log without coil currents (optional, `ambid.logs`)
+        amplifier = amplifier[np.isfinite(amplifier)]  # (where an FRF table's coil-current FRF reaches, `frf_arrays`)
+        if not amplifier.size:  # a log without coil currents (optional, `ambid.logs`)
             continue
         ratio = float(np.median(amplifier))
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
@@ -192,7 +241,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                     "(1: the amplifier's DC gain, I = (I_upper - I_lower) / 2)", model_source)
         rows.append({"check": "coil_current", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
         lead = np.concatenate(lead)
-        if np.median(lead) > 0 and np.mean(lead > 0) > 0.75:
+        lead = lead[np.isfinite(lead)]
+        if lead.size and np.median(lead) > 0 and np.mean(lead > 0) > 0.75:
             raise LogError(source, f"the coil currents of {names} lead their commands U2 (median {np.degrees(np.median(lead)):+.2f} "
                                    f"deg over the upper half of the band, {100 * np.mean(lead > 0):.0f} % of the steps), "
                                    "where an amplifier and the sampling only lag: the log's Fourier coefficients look "

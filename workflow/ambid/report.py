@@ -65,6 +65,13 @@ class Section:
         return re.sub(r"[^a-z0-9]+", "-", self.title.lower()).strip("-")
 
 
+#: Caption of a run's plausibility table (`ambid.plausibility.check_units`).
+PLAUSIBILITY_CAPTION = ("The log against the nominal model, before the FRF: its frequencies, low-frequency compliance "
+                        "and coil-current ratio over the model's (a unit error is 10^3 or 10^6 off; beyond 30x the run "
+                        "stops), and their signs (a channel of the other sign, swapped coil currents and complex "
+                        "conjugated coefficients stop it too).")
+
+
 # ------------------------------------------------------------------------------ Markdown
 _INLINE = [
     (re.compile(r"`([^`]+)`"), r"<code>\1</code>"),
@@ -471,6 +478,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         base = f"frf/{run}"
         if run in multisine_runs:
             sections.append(Section(f"Identification {run} (multisine BLA, beyond the thesis)", [
+                table(f"{base}/plausibility.tsv", PLAUSIBILITY_CAPTION + " The multisine run is read through its BLA: "
+                                                  "its compliance and coil-current FRF.")] + [
                 Figure(root / base / f"figures/{name}.png", caption("frf", run=run)) for name in ("radial_mimo", "axial")]
                 + [Figure(root / base / "figures/distortion.png", caption("distortion", run=run)),
                    table(f"{base}/distortion.tsv", "Output at the excited, odd-detection and even-detection lines of "
@@ -489,9 +498,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                    if "no_repeats" in set(findings_frame(read_findings(root / base / "findings.tsv"))["code"]) else "")
                 + "."))
             sections.append(Section(f"Identification {run} (thesis ch. 4, 6.2)", [
-                table(f"{base}/plausibility.tsv", "The log against the nominal model, before the FRF: its frequencies, "
-                                                  "low-frequency compliance and coil-current ratio over the model's (a "
-                                                  "unit error is 10^3 or 10^6 off; beyond 30x the run stops)."),
+                table(f"{base}/plausibility.tsv", PLAUSIBILITY_CAPTION),
                 _findings(root, f"{base}/findings.tsv", machine,
                           f"the log of run `{run}` (outlier steps before the FRF, how its floor was measured)")] + [
                 Figure(root / base / f"figures/{name}.png", caption("frf", run=run))

@@ -28,9 +28,13 @@ for p in passes:
                  p["name"], group.frequency_hz.size, group.frequency_hz.min(), group.frequency_hz.max(),
                  p["spectra"].shape[0], group.levels.tolist(), np.median(group.condition))
 coarse = passes[0]
+coil_currents = bool(np.isfinite(coarse["spectra"]).all())  # (optional for a whole log)
+if not coil_currents:
+    log.warning("the log has no coil currents: no coil-current FRF, and the excitation level from the control "
+                "currents U2 in their place")
 # what the force law is averaged over in this run: the model compared with it is linearized there
 excitation = excitation_covariance(coarse["spectra"], coarse["reference"])
-log.info("coarse pass, top level, rms coil current / position / correlation: %s",
+log.info("coarse pass, top level, rms %s / position / correlation: %s", "coil current" if coil_currents else "U2",
          "; ".join(f"{a} {np.sqrt(i):.3f} A, {1e6 * np.sqrt(x):.2f} um, {c / np.sqrt(max(i * x, 1e-300)):+.2f}"
                    for a, (i, x, c) in excitation.items()))
 write_parquet(table, snakemake.output.frf,
@@ -42,6 +46,7 @@ write_parquet(table, snakemake.output.frf,
                                     "systematic_std": "nonlinear distortion of the BLA (scatter between realizations "
                                                       "and the change between excitation levels)",
                                     "excitation_covariance": excitation,
+                                    "excitation_current": "coil" if coil_currents else "U2",
                                     "noise_pooled_lines": 2 * floor_settings.noise_half_width + 1})
 excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
 levels = distortion_levels(coarse["spectra"], coarse["role"], coarse["frequency_hz"], coarse["excites"], axes=excited_axes)
