@@ -19,7 +19,10 @@ before it (`check_units`), so that the FRF does not depend on the model.
   below the flexible modes a log and its model differ by a lag of a few
   degrees, so a compliance half a turn off is a channel of the other sign (a
   sensor mounted the other way, another writer's axis direction), and a coil
-  current opposite to its command is upper and lower swapped.  A log of complex
+  current opposite to its command is upper and lower swapped.  The bearings too: a
+  log whose drive-end axes have the model's non-drive-end compliance and the other
+  way round has the two bearings' channels swapped (on a machine whose bearings
+  differ, as hs_eden_like's do by a factor 1.6).  A log of complex
   conjugated coefficients (the other sign convention of the Fourier transform)
   shows as a compliance whose imaginary part has the other sign of the model's
   where that is resolved (damping and the loop's lags give it one sign), or as
@@ -54,6 +57,12 @@ __all__ = ["FRF_SETTINGS", "Outlier", "check_axes", "check_units", "frf_arrays",
 FRF_SETTINGS = {"estimator": "mimo", "outliers": "refuse", "outlier_threshold": 100.0}
 #: A unit error is called when the log is this far from the nominal model (a model is rarely off by 3x).
 UNIT_FACTOR = 30.0
+#: Each radial axis and the same direction at the other bearing.
+OTHER_BEARING = {"DX": "NX", "DY": "NY", "NX": "DX", "NY": "DY"}
+#: Bearings swapped when the log's low-frequency compliance deviates from the other bearing's by less than half, and
+#: by this much less (median |log| of the magnitude ratio: 0.2, about 22 %), than from its own; a machine with equal
+#: bearings (demo20) is never refused, and on hs_eden_like the right labels deviate 1-3 % and the swapped ones 44-47 %.
+BEARING_SWAP_LOG = 0.2
 _WINDOW = 6  # neighbours on each side that set an outlier's local scale
 _COHERENT = 2  # channels departing together at a step: a resonance (seen by two sensors at least), not a typo
 
@@ -183,6 +192,7 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not present or (axes == (AXIAL_AXIS,) and machine.axial_electromagnet is None):
             continue
         compliance, amplifier, flipped, swapped, lead, damping_sign = [], [], [], [], [], []
+        own_bearing, other_bearing = [], []  # |log| deviation from the model's own axis and from the other bearing's
         for axis in present:
             frequency, coefficients, _ = arrays[axis]
             # where the model's compliance has an imaginary part (damping, lags) the log's has its sign
@@ -199,8 +209,12 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             u = coefficients[low, CHANNELS.index(f"U2_{axis}")]
             v = coefficients[low, CHANNELS.index(f"V2_{axis}")]
             coil = 0.5 * (coefficients[low, CHANNELS.index(f"I_upper_{axis}")] - coefficients[low, CHANNELS.index(f"I_lower_{axis}")])
-            nominal = model(frequency[low])[:, axes.index(axis)]
+            diagonal = model(frequency[low])
+            nominal = diagonal[:, axes.index(axis)]
             compliance.append(np.abs(v / u) / np.abs(nominal))
+            if axis in OTHER_BEARING:
+                own_bearing.append(np.abs(np.log(compliance[-1])))
+                other_bearing.append(np.abs(np.log(np.abs(v / u) / np.abs(diagonal[:, axes.index(OTHER_BEARING[axis])]))))
             amplifier.append(np.abs(coil / u))
             # the sign: below the flexible modes a log and its model differ by a small lag, not half a turn
             if np.median(np.cos(np.angle(v / u / nominal))) < 0:
@@ -214,6 +228,16 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
+        if len(own_bearing) == len(OTHER_BEARING):
+            own_fit, other_fit = (float(np.median(np.concatenate(x))) for x in (own_bearing, other_bearing))
+            if other_fit < 0.5 * own_fit and own_fit - other_fit > BEARING_SWAP_LOG:
+                raise LogError(source, f"the low-frequency compliance |V2/U2| of DX, DY is the nominal model's of NX, NY "
+                                       f"and the other way round (median deviation {100 * np.expm1(other_fit):.1f} % so, "
+                                       f"{100 * np.expm1(own_fit):.0f} % as labelled, below {0.3 * first_flexible_hz:.0f} "
+                                       "Hz): the drive-end (D) and non-drive-end (N) channels look swapped (another "
+                                       "writer's bearing names); rename DX <-> NX and DY <-> NY in the log (U2, V2, the "
+                                       f"coil currents and the excited axis), unless {model_source} has its bearings the "
+                                       "other way round")
         rows.append({"check": "compliance", "axes": " ".join(present), "ratio": ratio, "below_hz": 0.3 * first_flexible_hz})
         if flipped:
             channels = ", ".join(f"V2_{a} or U2_{a}" for a in flipped)
