@@ -195,23 +195,22 @@ def sampled_chain(chain, sample_time_s, frequency_hz, sampling=DEFAULT_SAMPLING)
     a, b, c, d = series_state_space([e.siso_state_space() for e in chain])
     z = np.exp(2j * np.pi * np.asarray(frequency_hz, dtype=float) * sample_time_s)
     n = a.shape[0]
-    if sampling == "start_of_cycle":
-        if n == 0:
-            return d[0, 0] / z
-        transition, gamma = zoh_discretize(a, b, sample_time_s)
-        resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - transition, gamma.astype(complex))
-        return (c @ resolvent)[:, 0, 0] + d[0, 0] / z
     if n == 0:
-        return np.full(z.shape, d[0, 0], dtype=complex)
-    # Van Loan: expm([[F, I], [0, 0]] T) holds int_0^T e^(Fs) ds, F = [[A, B], [0, 0]] the held input's system
-    m = n + 1
-    augmented = np.zeros((2 * m, 2 * m))
-    augmented[:n, :n], augmented[:n, n:m], augmented[:m, m:] = a, b, np.eye(m)
-    exponential = scipy.linalg.expm(augmented * sample_time_s)
-    transition, gamma = exponential[:n, :n], exponential[:n, n:m]
-    mean_state, mean_input = exponential[:n, m:m + n] / sample_time_s, exponential[:n, m + n:] / sample_time_s
+        return d[0, 0] / z if sampling == "start_of_cycle" else np.full(z.shape, d[0, 0], dtype=complex)
+    if sampling == "start_of_cycle":
+        transition, gamma = zoh_discretize(a, b, sample_time_s)
+        output, feedthrough = c, d[0, 0] / z
+    else:
+        # Van Loan: expm([[F, I], [0, 0]] T) holds int_0^T e^(Fs) ds, F = [[A, B], [0, 0]] the held input's system
+        m = n + 1
+        augmented = np.zeros((2 * m, 2 * m))
+        augmented[:n, :n], augmented[:n, n:m], augmented[:m, m:] = a, b, np.eye(m)
+        exponential = scipy.linalg.expm(augmented * sample_time_s)
+        transition, gamma = exponential[:n, :n], exponential[:n, n:m]
+        mean_state, mean_input = exponential[:n, m:m + n] / sample_time_s, exponential[:n, m + n:] / sample_time_s
+        output, feedthrough = c @ mean_state, (c @ mean_input)[0, 0] + d[0, 0]
     resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - transition, gamma.astype(complex))
-    return (c @ mean_state @ resolvent)[:, 0, 0] + (c @ mean_input)[0, 0] + d[0, 0]
+    return (output @ resolvent)[:, 0, 0] + feedthrough
 
 
 class _SecondOrderAmplifier:
