@@ -99,6 +99,20 @@ class TestUnits:
                                            r"negate every imaginary part"):
             check_units(log_arrays(frame), demo_plant, SOURCE)
 
+    def test_the_excitation_logged_as_u2_is_named(self, example, demo_plant):
+        """A writer who logs the excitation E_u (a sine of the step's amplitude) where U2 belongs: V2/U2 is then the
+        closed loop V2/E_u.  It passed the unit and sign checks (|S| is near 1 below the flexible modes) and stopped at
+        the coil-current check of Z as 'complex conjugated', whose remedy would have been wrong."""
+        frame = example[0].copy()
+        u2 = frame["channel"].str.startswith("U2_")
+        own = frame["channel"] == "U2_" + frame["excited_axis"]
+        frame.loc[u2, ["re", "im"]] = 0.0
+        frame.loc[own, "im"] = -frame.loc[own, "amplitude_a"]  # A sin(w t), referred to the start of the excitation
+        with pytest.raises(LogError, match=r"the compliance V2/U2 of DX, DY, NX, NY is the nominal model's closed loop "
+                                           r"from the excitation, V2/E_u .* U2 looks like the excitation E_u logged in "
+                                           r"place of the control current"):
+            check_units(log_arrays(frame), demo_plant, SOURCE)
+
     @staticmethod
     def model_log(plant, swapped=False):
         """The model's own radial compliance below its first flexible mode as a log's steps (U2 = 1, coil current =

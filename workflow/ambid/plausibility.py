@@ -19,7 +19,9 @@ before it (`check_units`), so that the FRF does not depend on the model.
   below the flexible modes a log and its model differ by a lag of a few
   degrees, so a compliance half a turn off is a channel of the other sign (a
   sensor mounted the other way, another writer's axis direction), and a coil
-  current opposite to its command is upper and lower swapped.  The bearings too: a
+  current opposite to its command is upper and lower swapped.  A compliance that is
+  the model's closed loop from the excitation, V2/E_u, rather than its plant is a
+  log of the excitation in place of U2.  The bearings too: a
   log whose drive-end axes have the model's non-drive-end compliance and the other
   way round has the two bearings' channels swapped (on a machine whose bearings
   differ, as hs_eden_like's do by a factor 1.6).  A log of complex
@@ -46,6 +48,7 @@ import numpy as np
 from .errors import LogError
 from .findings import Finding
 from .logs import CHANNELS, _where
+from .loop import axial_transfer_functions, transfer_functions
 from .machine import AXIAL_AXIS, RADIAL_AXES
 from .mfile import THESIS_COLUMNS, _LAYOUT, variable_name
 from .plant import RIGID_MODES
@@ -57,6 +60,10 @@ __all__ = ["FRF_SETTINGS", "Outlier", "check_axes", "check_units", "frf_arrays",
 FRF_SETTINGS = {"estimator": "mimo", "outliers": "refuse", "outlier_threshold": 100.0}
 #: A unit error is called when the log is this far from the nominal model (a model is rarely off by 3x).
 UNIT_FACTOR = 30.0
+#: The excitation logged as U2 when the log's compliance deviates from the model's closed loop V2/E_u by less than half,
+#: and by this much less (median |ratio - 1|), than from its plant: the rig's logs deviate 2-10 % from the plant and
+#: 55-110 % from the closed loop, and so edited (E_u in U2) 58-136 % and 2-14 %.
+EXCITATION_AS_U2 = 0.3
 #: Each radial axis and the same direction at the other bearing.
 OTHER_BEARING = {"DX": "NX", "DY": "NY", "NX": "DX", "NY": "DY"}
 #: Bearings swapped when the log's low-frequency compliance deviates from the other bearing's by less than half, and
@@ -186,13 +193,13 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         rows.append({"check": "frequency", "axes": " ".join(a for a in axes if a in arrays), "ratio": float(ratio),
                      "below_hz": np.nan})
     first_flexible_hz = plant.modes.frequency_hz[RIGID_MODES]
-    for axes, model in ((RADIAL_AXES, lambda f: np.diagonal(plant.radial_frequency_response(f), axis1=1, axis2=2)),
-                        ((AXIAL_AXIS,), lambda f: plant.axial_frequency_response(f)[:, None])):
+    for axes, functions in ((RADIAL_AXES, transfer_functions), ((AXIAL_AXIS,), axial_transfer_functions)):
         present = [a for a in axes if a in arrays]
         if not present or (axes == (AXIAL_AXIS,) and machine.axial_electromagnet is None):
             continue
         compliance, amplifier, flipped, swapped, lead, damping_sign = [], [], [], [], [], []
         own_bearing, other_bearing = [], []  # |log| deviation from the model's own axis and from the other bearing's
+        open_loop, closed_loop = [], []  # |V2/U2 / model - 1| against the plant and against the closed loop V2/E
         for axis in present:
             frequency, coefficients, _ = arrays[axis]
             # where the model's compliance has an imaginary part (damping, lags) the log's has its sign
@@ -209,9 +216,12 @@ def check_units(arrays, plant, source, model_source="the machine file"):
             u = coefficients[low, CHANNELS.index(f"U2_{axis}")]
             v = coefficients[low, CHANNELS.index(f"V2_{axis}")]
             coil = 0.5 * (coefficients[low, CHANNELS.index(f"I_upper_{axis}")] - coefficients[low, CHANNELS.index(f"I_lower_{axis}")])
-            diagonal = model(frequency[low])
+            loop = functions(plant, frequency[low], hold=True)  # (the identified plant holds the DAC's hold too)
+            diagonal = np.diagonal(loop["plant"], axis1=1, axis2=2)
             nominal = diagonal[:, axes.index(axis)]
             compliance.append(np.abs(v / u) / np.abs(nominal))
+            open_loop.append(np.abs(v / u / nominal - 1))
+            closed_loop.append(np.abs(v / u / loop["dynamic_compliance"][:, axes.index(axis), axes.index(axis)] - 1))
             if axis in OTHER_BEARING:
                 own_bearing.append(np.abs(np.log(compliance[-1])))
                 other_bearing.append(np.abs(np.log(np.abs(v / u) / np.abs(diagonal[:, axes.index(OTHER_BEARING[axis])]))))
@@ -228,6 +238,14 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
+        open_fit, closed_fit = (float(np.median(np.concatenate(x))) for x in (open_loop, closed_loop))
+        if closed_fit < 0.5 * open_fit and open_fit - closed_fit > EXCITATION_AS_U2:
+            raise LogError(source, f"the compliance V2/U2 of {names} is the nominal model's closed loop from the "
+                                   f"excitation, V2/E_u (dynamic compliance; median deviation {100 * closed_fit:.0f} %), "
+                                   f"not its plant V2/U2 ({100 * open_fit:.0f} %), below {0.3 * first_flexible_hz:.0f} Hz: "
+                                   "U2 looks like the excitation E_u logged in place of the control current (U2 is the "
+                                   "controller's output plus E_u, the amplifiers' command); log U2, unless the "
+                                   f"controller of {model_source} is far from this machine's")
         if len(own_bearing) == len(OTHER_BEARING):
             own_fit, other_fit = (float(np.median(np.concatenate(x))) for x in (own_bearing, other_bearing))
             if other_fit < 0.5 * own_fit and own_fit - other_fit > BEARING_SWAP_LOG:
