@@ -1,10 +1,12 @@
 """Commissioning views: margins against closed forms, the measured sensitivity from a log, the ISO zone limits."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
 
-from ambid.commissioning import ISO_ZONE_LIMITS_DB, loop_margins, measured_sensitivity, sensitivity_rows
+from ambid.commissioning import ISO_ZONE_LIMITS_DB, excitation_check, loop_margins, measured_sensitivity, sensitivity_rows
 
 
 def integrator_with_delay(frequency_hz, gain_rad_s, delay_s):
@@ -92,3 +94,42 @@ def test_levitated_modes_and_campbell(demo_plant):
     near = spinning[np.abs(spinning["frequency_hz"] - bending) < 0.1 * bending]
     assert near.loc[near["whirl"] == "forward", "frequency_hz"].max() > near.loc[near["whirl"] == "backward",
                                                                                  "frequency_hz"].min()
+
+
+@pytest.fixture(scope="module")
+def example():
+    from ambid.mfile import read_thesis_m
+    from conftest import ROOT
+
+    return read_thesis_m(ROOT / "data/demo20/thesis01/identification.m")
+
+
+class TestExcitationCheck:
+    """A log from another writer may not carry what S = U2 / E_u needs; a meaningless |S| grades any loop in zone A."""
+
+    def test_the_example_log_is_graded(self, example, demo_plant):
+        assert excitation_check(measured_sensitivity(example), demo_plant) == ("", "")
+
+    def test_amplitude_in_ma_is_not_graded(self, example, demo_plant):
+        grade, _ = excitation_check(measured_sensitivity(example.assign(amplitude_a=1e3 * example["amplitude_a"])),
+                                    demo_plant)
+        assert re.search(r"\|S\| is 0\.00\d+ times the model's .* amplitude_a is not the excitation's amplitude in A "
+                         r"\(it looks like mA\)", grade), grade
+
+    def test_amplitude_taken_from_u2_is_not_graded(self, example, demo_plant):
+        """What the table reader does without an amplitude_a column: |S| = 1 at every step, zone A for any loop."""
+        u2 = example[example["channel"] == "U2_" + example["excited_axis"]]
+        amplitude = dict(zip(zip(u2["excited_axis"], u2["step"]), np.hypot(u2["re"], u2["im"])))
+        frame = example.assign(amplitude_a=[amplitude[key] for key in zip(example["excited_axis"], example["step"])])
+        assert all(r["iso_14839_zone"] == "A" for r in sensitivity_rows(
+            {a: (f, s) for a, (f, s, _) in measured_sensitivity(frame).items()}, "measured"))  # what was reported
+        grade, _ = excitation_check(measured_sensitivity(frame), demo_plant)
+        assert "excitation amplitude is |U2| at every step" in grade
+
+    def test_phases_of_another_reference_give_no_margins(self, example, demo_plant):
+        """Phases referred to a cosine (or to each window's start) instead of the start of A sin(w t): the zone reads
+        |S| and stands, the margins read the phase of L and are not given."""
+        frame = example.copy()
+        frame["re"], frame["im"] = -example["im"], example["re"]  # every coefficient times j (a quarter turn)
+        grade, margins = excitation_check(measured_sensitivity(frame), demo_plant)
+        assert grade == "" and re.search(r"the phase of S is \d+ degrees off the model's .* margins, are unknown", margins)

@@ -27,10 +27,10 @@ import pandas as pd
 from .errors import AmbidError
 from .loop import ISO_14839_ZONES, axial_transfer_functions, iso_zone, transfer_functions
 from .machine import AXIAL_AXIS, RADIAL_AXES
-from .plant import damping_ratio
+from .plant import RIGID_MODES, damping_ratio
 
-__all__ = ["ISO_ZONE_LIMITS_DB", "measured_sensitivity", "model_sensitivity", "loop_margins", "sensitivity_rows",
-           "campbell", "levitated_modes"]
+__all__ = ["ISO_ZONE_LIMITS_DB", "measured_sensitivity", "model_sensitivity", "excitation_check", "loop_margins",
+           "sensitivity_rows", "campbell", "levitated_modes"]
 
 #: ISO 14839-3 zone limits of the sensitivity peak [dB]: A/B, B/C, C/D (20 log10 of 3, 4, 5).
 ISO_ZONE_LIMITS_DB = tuple((float(20 * np.log10(limit)), zone) for limit, zone in ISO_14839_ZONES)
@@ -79,6 +79,66 @@ def model_sensitivity(plant, frequency_hz):
     if plant.machine.axial_electromagnet is not None:
         out[AXIAL_AXIS] = axial_transfer_functions(plant, frequency_hz, hold=True)["output_sensitivity"][:, 0, 0]
     return out
+
+
+def excitation_check(measured, plant, factor=30.0):
+    """Whether a log's measured sensitivity can be graded: the reasons it cannot, in words (empty: it can).
+
+    ``S = U2 / E_u`` needs the excitation's amplitude in A and the phases referred
+    to the start of the excitation (the log contract).  A log from another writer
+    may lack either, and ``|S|`` then grades any loop, however poor, in zone A:
+
+    * ``amplitude_a`` equal to ``|U2|`` at every step: a table without the column
+      (the import takes ``|U2|`` in its place), ``|S| = 1`` by construction;
+    * ``|S|`` a factor ``factor`` or more off the model's below 0.3 x the first
+      flexible mode (where a model's sensitivity is right within a few %: 2-5 % on
+      the rigs' logs), e.g. the amplitude in mA;
+    * phases more than 60 degrees off the model's there (0.7-1.4 degrees on the
+      rigs' logs): the zone stands (it reads ``|S|``), the margins (they read the
+      phase of ``L = 1/S - 1``) do not.
+
+    Parameters
+    ----------
+    measured : dict
+        `measured_sensitivity` of the log.
+    plant : ambid.plant.Plant
+        A model of the machine (the nominal variant).
+    factor : float
+        How far ``|S|`` may be from the model's.
+
+    Returns
+    -------
+    grade, margins : str
+        Why the zone (``grade``) or the margins cannot be given; empty where they can.
+    """
+    if not measured:
+        return "", ""
+    if all(np.allclose(np.abs(s), 1.0, rtol=1e-9, atol=0) for _, s, _ in measured.values()):
+        return ("the log's excitation amplitude is |U2| at every step (a table without amplitude_a: the import takes "
+                "|U2| in its place), so |S| = 1 by construction; log amplitude_a to grade the loop"), ""
+    first_flexible_hz = plant.modes.frequency_hz[RIGID_MODES]
+    ratio, phase = [], []
+    for axis, (frequency, sensitivity, _) in measured.items():
+        low = frequency <= 0.3 * first_flexible_hz
+        low = low if np.count_nonzero(low) >= 3 else np.ones_like(low)
+        model = model_sensitivity(plant, frequency[low]).get(axis)
+        if model is None:
+            continue
+        ratio.append(np.abs(sensitivity[low] / model))
+        phase.append(np.abs(np.angle(sensitivity[low] / model)))
+    if not ratio:
+        return "", ""
+    ratio, phase = float(np.median(np.concatenate(ratio))), float(np.degrees(np.median(np.concatenate(phase))))
+    if not 1 / factor < ratio < factor:
+        unit = " (it looks like mA)" if 2.5 < -np.log10(ratio) < 3.5 else ""
+        return (f"|S| is {ratio:.3g} times the model's below {0.3 * first_flexible_hz:.0f} Hz (0.3 x its first flexible "
+                f"mode), where a model's sensitivity is right within a few %: amplitude_a is not the excitation's "
+                f"amplitude in A{unit}"), ""
+    if phase > 60.0:
+        return "", (f"the phase of S is {phase:.0f} degrees off the model's below {0.3 * first_flexible_hz:.0f} Hz: the "
+                    "log's phases are not referred to the start of the excitation A sin(w t) (the log contract), so the "
+                    "loop gain's phase, and the margins, are unknown")
+    return "", ""
 
 
 def _crossings(x, y, level):

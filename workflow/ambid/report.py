@@ -560,9 +560,13 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
         base = f"commissioning/{run}"
         sensitivity = read_tsv(root / base / "sensitivity.tsv")
         measured = sensitivity[sensitivity["source"] == "measured"]
-        facts.append(Text(f"Measured sensitivity peak per axis (run `{run}`, ISO 14839-3 zone): " + ", ".join(
-            f"{r.axis} {r.sensitivity_peak_db:.1f} dB at {r.sensitivity_peak_hz:.0f} Hz (zone {r.iso_14839_zone})"
-            for r in measured.itertuples()) + "."))
+        notes = sorted(set(measured["note"].dropna())) if "note" in measured else []
+        if (measured["iso_14839_zone"] == "not graded").any():
+            facts.append(Text(f"Measured sensitivity of run `{run}` **not graded** (ISO 14839-3): {'; '.join(notes)}."))
+        else:
+            facts.append(Text(f"Measured sensitivity peak per axis (run `{run}`, ISO 14839-3 zone): " + ", ".join(
+                f"{r.axis} {r.sensitivity_peak_db:.1f} dB at {r.sensitivity_peak_hz:.0f} Hz (zone {r.iso_14839_zone})"
+                for r in measured.itertuples()) + "." + (f" Margins not given: {'; '.join(notes)}." if notes else "")))
         sections.append(Section(f"Commissioning view {run} (ISO 14839-3, beyond the thesis)", [
             Text(caption("commissioning", run=run)),
             Figure(root / base / "figures/sensitivity.png", caption("commissioning_sensitivity", run=run)),

@@ -3,8 +3,8 @@
 import numpy as np
 import pandas as pd
 
-from ambid.commissioning import (ISO_ZONE_LIMITS_DB, campbell, levitated_modes, measured_sensitivity, model_sensitivity,
-                                 sensitivity_rows)
+from ambid.commissioning import (ISO_ZONE_LIMITS_DB, campbell, excitation_check, levitated_modes, measured_sensitivity,
+                                 model_sensitivity, sensitivity_rows)
 from ambid.io import read_tsv, read_yaml, rule_log, write_tsv
 from ambid.logs import read_identification_log
 from ambid.machine import machine_from_config
@@ -16,7 +16,19 @@ log = rule_log(snakemake.log[0], "commissioning")
 machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
 frame, _ = read_identification_log(snakemake.input.log)
 measured = measured_sensitivity(frame)
-rows = sensitivity_rows({axis: (f, s) for axis, (f, s, _) in measured.items()}, "measured")
+nominal = Plant(machine_from_config(read_yaml(snakemake.input.models[0]), name=machine_name, source=snakemake.input.models[0]))
+ungraded, no_margins = excitation_check(measured, nominal)
+graded = {} if ungraded else measured  # a zone A from a meaningless |S| would pass a poor loop
+if ungraded:
+    log.warning("measured sensitivity not graded: %s", ungraded)
+    rows = [{"axis": axis, "source": "measured", "iso_14839_zone": "not graded", "note": ungraded} for axis in measured]
+else:
+    rows = sensitivity_rows({axis: (f, s) for axis, (f, s, _) in measured.items()}, "measured")
+    if no_margins:
+        log.warning("measured margins not given: %s", no_margins)
+        margins = ("upper_gain_margin_db", "upper_gain_margin_hz", "lower_gain_margin_db", "lower_gain_margin_hz",
+                   "phase_margin_deg", "phase_margin_hz")
+        rows = [{**row, **dict.fromkeys(margins, np.nan), "note": no_margins} for row in rows]
 plants, curves = {}, {}
 for variant, path in zip(snakemake.params.variants, snakemake.input.models):
     plant = Plant(machine_from_config(read_yaml(path), name=machine_name, source=path))
@@ -38,7 +50,7 @@ write_tsv(table, snakemake.output.sensitivity)
 for row in table.itertuples():
     log.info("%s %-28s peak %.2f dB at %.0f Hz (zone %s)", row.axis, row.source, row.sensitivity_peak_db,
              row.sensitivity_peak_hz, row.iso_14839_zone)
-save_figure(sensitivity_zones(measured, curves, ISO_ZONE_LIMITS_DB,
+save_figure(sensitivity_zones(graded, curves, ISO_ZONE_LIMITS_DB,
                               f"{machine_name} {run}: sensitivity |U2/Eu| per axis, measured and modelled (ISO 14839-3 zones)"),
             snakemake.output.sensitivity_figure, snakemake.params.dpi)
 
