@@ -57,6 +57,49 @@ class TestTables:
         same_log(back, frame)
         assert provenance["format"] == "table" and provenance["layout"] == "long" and "V2 um" in provenance["units"]
 
+    def test_one_control_current_per_axis(self, frame, tmp_path):
+        """A logger that measures the control current (I_upper - I_lower) / 2 alone, as I_<axis>: the coil-current
+        FRF and its noise are the same as from the pair (long and wide layouts); the pair beside it is an error."""
+        keys = ["excited_axis", "step"]
+        pairs = frame[frame["channel"].str.startswith("I_")].copy()
+        pairs["axis"] = pairs["channel"].str.split("_").str[-1]
+        pairs["side"] = pairs["channel"].str.split("_").str[1]
+        wide_pairs = pairs.pivot_table(index=keys + ["axis", "frequency_hz", "amplitude_a", "attempts"], columns="side",
+                                       values=["re", "im", "noise_std"]).reset_index()
+        control = pd.DataFrame({**{k: wide_pairs[k] for k in keys + ["frequency_hz", "amplitude_a", "attempts"]},
+                                "channel": "I_" + wide_pairs["axis"],
+                                "re": 0.5 * (wide_pairs[("re", "upper")] - wide_pairs[("re", "lower")]),
+                                "im": 0.5 * (wide_pairs[("im", "upper")] - wide_pairs[("im", "lower")]),
+                                "noise_std": 0.5 * np.hypot(wide_pairs[("noise_std", "upper")], wide_pairs[("noise_std", "lower")])})
+        control.columns = [c[0] if isinstance(c, tuple) else c for c in control.columns]
+        control["level"] = 0
+        table = pd.concat([frame[~frame["channel"].str.startswith("I_")], control], ignore_index=True)
+        table.to_csv(tmp_path / "long.csv", index=False)
+        back, provenance = read_log(tmp_path / "long.csv")
+        assert any("control currents I_<axis>" in note for note in provenance["notes"])
+        expected, got = current_etfe(log_arrays(frame)), current_etfe(log_arrays(back))
+        assert set(got) == set(expected)
+        for key in expected:
+            assert_allclose(got[key][1], expected[key][1], rtol=1e-12)
+            assert_allclose(got[key][2], expected[key][2], rtol=1e-12)
+        wide_table = wide(table)  # the canonical channels (wide() knows no others), then the control currents
+        rows = wide_table.set_index(keys).index
+        for name in ALL_AXES:
+            part = control[control["channel"] == f"I_{name}"].set_index(keys)
+            for piece in ("re", "im", "noise_std"):
+                wide_table[f"I_{name}_{piece}_mA"] = 1e3 * part[piece].reindex(rows).to_numpy()
+        wide_table.to_csv(tmp_path / "wide.csv", index=False)
+        back, _ = read_log(tmp_path / "wide.csv")
+        got = current_etfe(log_arrays(back))
+        assert set(got) == set(expected)
+        for key in expected:
+            assert_allclose(got[key][1], expected[key][1], rtol=1e-12)
+        both = pd.concat([frame, control[control["channel"] == "I_DX"]], ignore_index=True)
+        both.to_csv(tmp_path / "both.csv", index=False)
+        with pytest.raises(LogError, match=r"both\.csv: step \d+ of \w+: I_DX \(the control current\) and the "
+                                           r"coil-current pair of DX both given"):
+            read_log(tmp_path / "both.csv")
+
     def test_plain_parquet_without_metadata(self, frame, tmp_path):
         """As users write it (pandas.to_parquet): the canonical reader names the keys it wants, the table reader reads it."""
         path = tmp_path / "identification.parquet"

@@ -28,7 +28,11 @@ Formats (`FORMATS`, told from the file name by `detect_format`):
 
     Coefficients are SI (m for ``V2_*``, A for ``U2_*`` and ``I_*``) unless
     the column names or the options ``position_unit`` (`POSITION_UNITS`) and
-    ``current_unit`` (`CURRENT_UNITS`) say otherwise.
+    ``current_unit`` (`CURRENT_UNITS`) say otherwise.  A logger that measures
+    one current per axis, the control current ``I_<axis> = (I_upper - I_lower) / 2``
+    (`CONTROL_CURRENT_CHANNELS`), gives it as such: it is written as ``I_upper = I``,
+    ``I_lower = -I``, each with noise ``sqrt(2)`` times its own, so the FRF stage's
+    coil current and its noise are the logged ones.
 ``m``
     A thesis-style ``.m`` file (`ambid.mfile`: 22 columns, or 18 radial and 6
     axial), parsed by a strict grammar, never evaluated.
@@ -67,6 +71,7 @@ __all__ = [
     "read_mat_log",
     "read_uff_frf",
     "UFF_STD_WINDOW",
+    "CONTROL_CURRENT_CHANNELS",
 ]
 
 FORMATS = ("parquet", "table", "m", "mat", "uff")
@@ -77,9 +82,11 @@ CURRENT_UNITS = {"a": 1.0, "ma": 1e-3}
 UFF_STD_WINDOW = 15
 
 _SUFFIXES = {".m": "m", ".mat": "mat", ".csv": "table", ".uff": "uff", ".unv": "uff"}
+#: One current per axis, the control current ``(I_upper - I_lower) / 2``: a table may give it in place of the pair.
+CONTROL_CURRENT_CHANNELS = tuple(f"I_{axis}" for axis in ALL_AXES)
 _LONG_REQUIRED = ("excited_axis", "frequency_hz", "channel", "re", "im")
 _PER_STEP = ("excited_axis", "step", "frequency_hz", "amplitude_a", "attempts", "level")
-_WIDE_COLUMN = re.compile(rf"^({'|'.join(CHANNELS)})_(re|im|noise_std)(?:_(\w+))?$")
+_WIDE_COLUMN = re.compile(rf"^({'|'.join(CHANNELS + CONTROL_CURRENT_CHANNELS)})_(re|im|noise_std)(?:_(\w+))?$")
 
 
 def detect_format(path):
@@ -200,7 +207,7 @@ def read_table_log(path, position_unit=None, current_unit=None):
             f"(+ step, amplitude_a, noise_std, attempts), the wide one excited_axis, frequency_hz and <channel>_re, "
             f"<channel>_im per channel (e.g. V2_DX_re); found {', '.join(table.columns[:12])}",
         )
-    frame = identification_frame(records)
+    frame = identification_frame(_control_currents(records, path, notes))
     validate_identification_log(frame, path)
     return frame, {"file": path, "format": "table", "layout": layout, "units": units, "notes": notes}
 
@@ -244,10 +251,11 @@ def _long_records(table, path, position_unit, current_unit):
     table["excited_axis"] = table["excited_axis"].astype(str).str.strip()
     table["channel"] = table["channel"].astype(str).str.strip()
     _check_axes(table["excited_axis"], path)
-    unknown = ~table["channel"].isin(CHANNELS)
+    unknown = ~table["channel"].isin(CHANNELS + CONTROL_CURRENT_CHANNELS)
     if unknown.any():
         row = int(np.flatnonzero(unknown.to_numpy())[0])
-        raise LogError(path, f"row {row + 1}: unknown channel {table['channel'].iat[row]!r}; known: {', '.join(CHANNELS)}")
+        raise LogError(path, f"row {row + 1}: unknown channel {table['channel'].iat[row]!r}; known: "
+                             f"{', '.join(CHANNELS + CONTROL_CURRENT_CHANNELS)}")
     for name in ("frequency_hz", "re", "im", "noise_std", "amplitude_a", "step", "attempts", "level"):
         if name in table:
             table[name] = _numeric(table, name, path)
@@ -267,6 +275,33 @@ def _long_records(table, path, position_unit, current_unit):
         records.append(_record(axis, step, first, list(rows["channel"]), values[index], noise[index], per_step))
     units = f"V2 {position_unit or 'm'}, U2 and I {current_unit or 'A'}"
     return records, notes, units
+
+
+def _control_currents(records, path, notes):
+    """Each control current ``I_<axis>`` of the records as the coil-current pair ``I_upper = I``, ``I_lower = -I``
+    (noise ``sqrt(2)`` times: the pair's propagated noise of ``(I_upper - I_lower) / 2`` is the logged one)."""
+    found = False
+    for record in records:
+        channels = list(record["channels"])
+        given = [c for c in channels if c in CONTROL_CURRENT_CHANNELS]
+        if not given:
+            continue
+        found = True
+        both = [c for c in given if f"I_upper_{c[2:]}" in channels or f"I_lower_{c[2:]}" in channels]
+        if both:
+            raise LogError(path, f"step {record['step']} of {record['excited_axis']}: {both[0]} (the control current) "
+                                 f"and the coil-current pair of {both[0][2:]} both given; give one of them")
+        coefficients, noise = list(record["coefficients"]), list(record["noise_std"])
+        for name in given:
+            k = channels.index(name)
+            value, sigma = coefficients[k], noise[k] * np.sqrt(2)
+            channels[k:k + 1] = [f"I_upper_{name[2:]}", f"I_lower_{name[2:]}"]
+            coefficients[k:k + 1] = [value, -value]
+            noise[k:k + 1] = [sigma, sigma]
+        record.update(channels=channels, coefficients=np.array(coefficients), noise_std=np.array(noise))
+    if found:
+        notes.append("control currents I_<axis> = (I_upper - I_lower) / 2 given: written as I_upper = I, I_lower = -I")
+    return records
 
 
 def _record(axis, step, first, channels, coefficients, noise, per_step):
