@@ -68,7 +68,8 @@ EXCITATION_AS_U2 = 0.3
 OTHER_BEARING = {"DX": "NX", "DY": "NY", "NX": "DX", "NY": "DY"}
 #: Bearings swapped when the log's low-frequency compliance deviates from the other bearing's by less than half, and
 #: by this much less (median |log| of the magnitude ratio: 0.2, about 22 %), than from its own; a machine with equal
-#: bearings (demo20) is never refused, and on hs_eden_like the right labels deviate 1-3 % and the swapped ones 44-47 %.
+#: bearings (demo20) is never refused; on hs_eden_like's rig log the right labels deviate by |log| 0.010-0.028 per axis
+#: and the swapped ones by 0.44-0.47 (a factor 1.55-1.60).
 BEARING_SWAP_LOG = 0.2
 _WINDOW = 6  # neighbours on each side that set an outlier's local scale
 _COHERENT = 2  # channels departing together at a step: a resonance (seen by two sensors at least), not a typo
