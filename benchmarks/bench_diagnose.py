@@ -6,7 +6,7 @@
    (`ambid.experiment.hidden_effect_draws`), (b) three pairs, (c) physics outside
    the library (`ambid.rig_effects`: a second-order current loop, a sensor gain
    error on one axis, a notch in one sensor's electronics, a mis-tuned controller
-   notch), (d) nothing (negative control).  Each rig is identified with the
+   notch), (d) nothing (negative control; on `EXTRA_NEGATIVE_SEEDS` more seeds too).  Each rig is identified with the
    stepped sine (repeated steps included) and the nominal model diagnosed from
    the FRF alone.  Scored, per the issue:
    - top-1: the diagnosis chose exactly the hidden effects (or named them
@@ -93,6 +93,9 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIG = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
 MACHINES = ("hs_eden_like", "demo20")
 PAIRS = (("delay", "foundation_mode"), ("amplifier_lowpass", "element_stiffness"), ("modal_damping", "sensor_lowpass"))
+#: Negative controls beyond the suite's seeds (stop 38: two seeds per machine hid a false "unexplained" in the coil
+#: currents that 4 of 10 further no-effect logs showed): ten per machine with the default two seeds.
+EXTRA_NEGATIVE_SEEDS = 8
 OUTSIDE = {
     "amplifier_second_order": {"natural_hz": 1500.0, "damping_ratio": 0.5},
     "sensor_gain": {"axis": "NX", "gain": 1.04},
@@ -126,7 +129,8 @@ def run_case(case):
     """Identify one rig and diagnose its nominal model; the scores of `score`."""
     machine, kind, names, seed, radial_points = case
     config = machine_config(machine, radial_points)
-    draws = drawn(machine, seed, radial_points)
+    # (the draws, ~15 s a seed, only where a case hides a library effect: not for the extra negative controls' seeds)
+    draws = drawn(machine, seed, radial_points) if kind in ("single", "pair") else {"signature": {}}
     effects = [{"name": n, "parameters": draws[n]} for n in names] if kind in ("single", "pair") else []
     unmodelled = [{"name": names[0], "parameters": OUTSIDE[names[0]]}] if kind == "outside" else []
     settings = settings_from_config(CONFIG["identification"])
@@ -211,6 +215,7 @@ def suite(seeds, radial_points, workers):
         for seed in seeds:
             cases += [(machine, "single", (name,), seed, radial_points) for name in sorted(EFFECTS)]
             cases += [(machine, "none", (), seed, radial_points)]
+        cases += [(machine, "none", (), max(seeds) + 1 + k, radial_points) for k in range(EXTRA_NEGATIVE_SEEDS)]
         cases += [(machine, "pair", pair, seeds[0], radial_points) for pair in PAIRS]
         cases += [(machine, "outside", (name,), seeds[0], radial_points) for name in OUTSIDE]
     print(f"1. hidden-effect suite: {len(cases)} rigs ({len(MACHINES)} machines, seeds {list(seeds)}, "
