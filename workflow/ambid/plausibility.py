@@ -154,8 +154,10 @@ def frf_arrays(table):
 
 
 def check_units(arrays, plant, source, model_source="the machine file"):
-    """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more, or
-    whose compliance or coil current has the other sign (half a turn of phase below 0.3 x the first flexible mode).
+    """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more, whose
+    compliance or coil current has the other sign (half a turn of phase below 0.3 x the first flexible mode), whose
+    compliance is the model's closed loop from the excitation (E_u logged as U2, `EXCITATION_AS_U2`), whose bearings'
+    channels are swapped (`BEARING_SWAP_LOG`), or whose coefficients are complex conjugated.
 
     Parameters
     ----------
