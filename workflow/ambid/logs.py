@@ -714,7 +714,8 @@ def validate_multisine_log(frame, source):
         value is not finite; an index is negative, ``line < 1`` or
         ``frequency_hz <= 0``; a pass' lines are not harmonics of one ``f0``
         (``frequency_hz / line`` constant); a row is duplicated or a (record,
-        line) lacks a channel (the coil currents ``I_*`` may be absent from the whole log); the records of a pass differ in their lines or
+        line) lacks a channel (the coil currents ``I_*`` may be absent from the
+        whole log); the records of a pass differ in their lines or
         periods, a pass has fewer than 2 periods (no noise estimate) or an
         incomplete realization x experiment grid; a line's role differs
         between records; a reference channel changes between periods; an
