@@ -18,8 +18,8 @@ import pytest
 import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
-from ambid.diagnose import (Candidate, DiagnoseError, FreeParameter, candidate_space, diagnose, effect_label, joint_refit,
-                            misfit, misfit_cells, misfit_peaks, plant_with_effects)
+from ambid.diagnose import (CELL_TAIL, Candidate, DiagnoseError, FreeParameter, candidate_space, chance_limit, diagnose,
+                            effect_label, joint_refit, misfit, misfit_cells, misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -531,3 +531,14 @@ def test_what_the_data_alone_determine():
     alone = _data_standard_deviations(blind, 400.0, 200, 3)
     assert alone[0] == pytest.approx(full[0], rel=0.5) and min(alone[1:]) > 1e4 * max(full)
     assert np.all(np.isfinite(np.diag(_covariance(blind, 400.0, 200, 3))))  # where the pseudo-inverse sees no problem
+
+
+def test_a_cell_at_the_floor_exceeds_its_chance_limit_as_rarely_as_meant():
+    """A cell of n complex points at the floor (|r|^2 exponential, mean 1): its chi2 per point exceeds `chance_limit`
+    with the 3-sigma tail's probability; the normal approximation 1 + 3 / sqrt(n) let a 26-point cell (the axial coil
+    current's row) through about four times as often (hs_eden_like 2035's negative control: 1.61, "unexplained")."""
+    rng = np.random.default_rng(11)
+    cells = rng.exponential(size=(400_000, 26)).mean(axis=1)
+    assert np.mean(cells > chance_limit(26)) == pytest.approx(CELL_TAIL, rel=0.25)
+    assert np.mean(cells > 1 + 3 / np.sqrt(26)) > 3 * CELL_TAIL
+    assert chance_limit(10_000) == pytest.approx(1 + 3 / np.sqrt(10_000), rel=1e-3)  # many points: the normal limit
