@@ -64,8 +64,9 @@ the two second-order-amplifier rigs only.  Stop 38 (a channel's repeated pairs t
 decide by their scatter whether its amplitude dependence is measured, `ambid.amplitude.pair_noise_factor`): the same
 figures, row for row; the negative controls of seeds 2028-2032 went from 4 of 10 "unexplained" (the coil currents) to
 10 of 10 "nothing".  With `EXTRA_NEGATIVE_SEEDS` (seeds 2028-2035 beside 2026-2027, 78 rigs): negative controls 19 of
-20; hs_eden_like 2035 says "unexplained" for its I_Z row at chi2/pt 1.61 against the limit 1.59 of its 26 points,
-about the rate a 3-sigma limit per cell gives over the ~20 cells of a log.  About 10 minutes.
+20; hs_eden_like 2035 said "unexplained" for its I_Z row at chi2/pt 1.61 against the limit 1.59 of its 26 points, the
+normal approximation of the cell's chance limit; with the Gamma quantile (`ambid.diagnose.chance_limit`, 1.69 there)
+20 of 20, the other figures the same (46, 44, 50, 8 / 8).  About 10 minutes.
 """
 
 import concurrent.futures
