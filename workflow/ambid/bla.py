@@ -54,7 +54,7 @@ import pandas as pd
 from .errors import LogError
 from .floor import band_labels, frequency_bands, pool_variance
 from .frf import frf_table
-from .logs import CHANNELS, COIL_CURRENT_CHANNELS
+from .logs import CHANNELS, COIL_CURRENT_CHANNELS, has_coil_currents
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 from .zoom import outside_bands
 
@@ -372,7 +372,7 @@ def multisine_passes(frame):
     """
     names = list(CHANNELS) + [f"E_{a}" for a in ALL_AXES]
     index = {name: k for k, name in enumerate(names)}
-    absent = [index[name] for name in COIL_CURRENT_CHANNELS] if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any() else []
+    absent = [] if has_coil_currents(frame) else [index[name] for name in COIL_CURRENT_CHANNELS]
     out = []
     for name, group in frame.groupby("pass", sort=False):
         realizations = np.sort(group["realization"].unique())

@@ -27,8 +27,8 @@ import yaml
 from .errors import AmbidError, ConfigError
 from .io import atomic_path
 from .bla import multisine_passes, realization_levels
-from .logs import (CHANNELS, COIL_CURRENT_CHANNELS, is_multisine_log, noise_from_scatter, read_multisine_log,
-                   repeated_steps, write_identification_log)
+from .logs import (CHANNELS, COIL_CURRENT_CHANNELS, has_coil_currents, is_multisine_log, noise_from_scatter,
+                   read_multisine_log, repeated_steps, write_identification_log)
 from .machine import ALL_AXES, RADIAL_AXES, machine_from_config
 from .readers import FORMATS, POSITION_UNITS, detect_format, read_log, read_uff_frf
 
@@ -236,7 +236,7 @@ def _summary_of_log(frame, provenance):
     else:
         warnings.append("no step repeated at a lower amplitude (column level): the FRF will be the describing function "
                         "at each step's excitation amplitude, the force law's amplitude-dependent error in it")
-    coils = frame["channel"].isin(COIL_CURRENT_CHANNELS).any()
+    coils = has_coil_currents(frame)
     if not coils:
         warnings.append("no coil currents (I_upper, I_lower): the FRFs will be the positions' alone, and the diagnosis "
                         "cannot tell an amplifier's lag from a sensor's or a delay")
@@ -266,14 +266,14 @@ def _summary_of_multisine(frame, info, path):
     lines = [f"{path}: multisine log, design {design}",
              f"{'pass':<8}{'lines':>6}  {'frequency band':<24}{'f0 [Hz]':<10}{'R x E x P':<11}levels"]
     warnings = []
+    levels = {item["name"]: np.unique(np.round(realization_levels(item["reference"]), 6)) for item in passes}
     for item in passes:
         realizations, experiments, periods = item["spectra"].shape[:3]
         excited = item["role"] == "excited"
-        levels = np.unique(np.round(realization_levels(item["reference"]), 6))
         band = item["frequency_hz"][excited]
         records = f"{realizations} x {experiments} x {periods}"
         lines.append(f"{item['name']:<8}{band.size:>6}  {f'{band.min():.4g}-{band.max():.4g} Hz':<24}"
-                     f"{item['frequency_hz'][0] / item['lines'][0]:<10.4g}{records:<11}{', '.join(f'{v:.3g}' for v in levels)}")
+                     f"{item['frequency_hz'][0] / item['lines'][0]:<10.4g}{records:<11}{', '.join(f'{v:.3g}' for v in levels[item['name']])}")
     coarse = passes[0]
     excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
     lines.append(f"axes excited: {', '.join(excited_axes)}")
@@ -293,7 +293,7 @@ def _summary_of_multisine(frame, info, path):
                         "MIMO estimate (needs DX, DY, NX, NY)")
     if "Z" not in excited_axes:
         warnings.append("Z not excited: no axial FRF")
-    if coarse["spectra"].shape[0] < 2 and len(np.unique(np.round(realization_levels(coarse["reference"]), 6))) < 2:
+    if coarse["spectra"].shape[0] < 2 and len(levels[coarse["name"]]) < 2:
         warnings.append("one realization at one level: no nonlinear-distortion estimate (the BLA's systematic_std is NaN)")
     if not (coarse["role"] != "excited").any():
         warnings.append("no detection lines: no odd and even distortion levels")

@@ -29,7 +29,7 @@ from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, pooled_noise, systematic_floor
 from .findings import Finding
-from .logs import CHANNELS, COIL_CURRENT_CHANNELS, noise_from_scatter, repeated_steps
+from .logs import CHANNELS, has_coil_currents, noise_from_scatter, repeated_steps
 from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
@@ -279,7 +279,7 @@ def frf_stage(frame, settings, log, source=None, source_lines=None, original=Non
         frame = noise_from_scatter(frame, source)
         scatter_noise = frame.groupby("channel")["noise_std"].first()
     frame, findings = check_log(frame, log_arrays(frame), settings, log, source_lines, original)
-    if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any():
+    if not has_coil_currents(frame):
         findings.append(Finding("frf", "note", "no_coil_currents", "run",
                                 "the log carries no coil currents: the FRFs are the positions' alone, and the diagnosis "
                                 "cannot tell an amplifier's lag from a sensor's or a delay (they differ in the coil "

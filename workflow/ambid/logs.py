@@ -73,6 +73,7 @@ __all__ = [
     "write_multisine_log",
     "read_multisine_log",
     "is_multisine_log",
+    "has_coil_currents",
     "validate_multisine_log",
 ]
 
@@ -658,6 +659,11 @@ def write_multisine_log(frame, path, metadata=None):
                   kind=MULTISINE_KIND, metadata={**(metadata or {}), "channel_units": channel_units})
 
 
+def has_coil_currents(frame):
+    """Whether a log (stepped sine or multisine) carries the coil currents, optional for a whole log."""
+    return bool(frame["channel"].isin(COIL_CURRENT_CHANNELS).any())
+
+
 def is_multisine_log(path):
     """Whether a Parquet file written by ambid holds a multisine log (its ``ambid.kind``), without reading its rows."""
     try:
@@ -728,7 +734,7 @@ def validate_multisine_log(frame, source):
         raise LogError(source, "no rows (a multisine log holds at least one pass)")
     known = CHANNELS + REFERENCE_CHANNELS
     _fail(frame, ~frame["channel"].isin(known).to_numpy(), source, f"unknown channel; known: {', '.join(known)}")
-    if not frame["channel"].isin(COIL_CURRENT_CHANNELS).any():  # the coil currents are optional for a whole log
+    if not has_coil_currents(frame):  # the coil currents are optional for a whole log
         known = tuple(name for name in known if name not in COIL_CURRENT_CHANNELS)
     _fail(frame, ~frame["role"].isin(LINE_ROLES).to_numpy(), source, f"unknown role; known: {', '.join(LINE_ROLES)}")
     for name in ("frequency_hz", "re", "im"):

@@ -153,6 +153,13 @@ def frf_arrays(table):
     return out
 
 
+def _explains_better(as_labelled, alternative, margin):
+    """The median deviations of a log from its model as labelled and under another reading (lists of per-axis
+    arrays, pooled), and whether the other reading explains it: below half the labelled deviation, and by ``margin``."""
+    labelled, other = (float(np.median(np.concatenate(x))) for x in (as_labelled, alternative))
+    return labelled, other, other < 0.5 * labelled and labelled - other > margin
+
+
 def check_units(arrays, plant, source, model_source="the machine file"):
     """Refuse a log whose frequencies, positions or currents are off the nominal model by `UNIT_FACTOR` or more, whose
     compliance or coil current has the other sign (half a turn of phase below 0.3 x the first flexible mode), whose
@@ -241,8 +248,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
         if not 1 / UNIT_FACTOR < ratio < UNIT_FACTOR:
             _refuse(source, f"the low-frequency compliance |V2/U2| of {names}", ratio, "position",
                     f"(median below {0.3 * first_flexible_hz:.0f} Hz, 0.3 x its first flexible mode)", model_source)
-        open_fit, closed_fit = (float(np.median(np.concatenate(x))) for x in (open_loop, closed_loop))
-        if closed_fit < 0.5 * open_fit and open_fit - closed_fit > EXCITATION_AS_U2:
+        open_fit, closed_fit, closed_explains = _explains_better(open_loop, closed_loop, EXCITATION_AS_U2)
+        if closed_explains:
             raise LogError(source, f"the compliance V2/U2 of {names} is the nominal model's closed loop from the "
                                    f"excitation, V2/E_u (dynamic compliance; median deviation {100 * closed_fit:.0f} %), "
                                    f"not its plant V2/U2 ({100 * open_fit:.0f} %), below {0.3 * first_flexible_hz:.0f} Hz: "
@@ -250,8 +257,8 @@ def check_units(arrays, plant, source, model_source="the machine file"):
                                    "controller's output plus E_u, the amplifiers' command); log U2, unless the "
                                    f"controller of {model_source} is far from this machine's")
         if len(own_bearing) == len(OTHER_BEARING):
-            own_fit, other_fit = (float(np.median(np.concatenate(x))) for x in (own_bearing, other_bearing))
-            if other_fit < 0.5 * own_fit and own_fit - other_fit > BEARING_SWAP_LOG:
+            own_fit, other_fit, swap_explains = _explains_better(own_bearing, other_bearing, BEARING_SWAP_LOG)
+            if swap_explains:
                 raise LogError(source, f"the low-frequency compliance |V2/U2| of DX, DY is the nominal model's of NX, NY "
                                        f"and the other way round (median deviation {100 * np.expm1(other_fit):.1f} % so, "
                                        f"{100 * np.expm1(own_fit):.0f} % as labelled, below {0.3 * first_flexible_hz:.0f} "

@@ -16,8 +16,9 @@ log = rule_log(snakemake.log[0], "commissioning")
 machine_name, run = snakemake.wildcards.machine, snakemake.wildcards.run
 frame, _ = read_identification_log(snakemake.input.log)
 measured = measured_sensitivity(frame)
-nominal = Plant(machine_from_config(read_yaml(snakemake.input.models[0]), name=machine_name, source=snakemake.input.models[0]))
-ungraded, no_margins = excitation_check(measured, nominal)
+plants = {variant: Plant(machine_from_config(read_yaml(path), name=machine_name, source=path))
+          for variant, path in zip(snakemake.params.variants, snakemake.input.models)}
+ungraded, no_margins = excitation_check(measured, plants[snakemake.params.variants[0]])  # the nominal variant
 graded = {} if ungraded else measured  # a zone A from a meaningless |S| would pass a poor loop
 if ungraded:
     log.warning("measured sensitivity not graded: %s", ungraded)
@@ -29,10 +30,8 @@ else:
         margins = ("upper_gain_margin_db", "upper_gain_margin_hz", "lower_gain_margin_db", "lower_gain_margin_hz",
                    "phase_margin_deg", "phase_margin_hz")
         rows = [{**row, **dict.fromkeys(margins, np.nan), "note": no_margins} for row in rows]
-plants, curves = {}, {}
-for variant, path in zip(snakemake.params.variants, snakemake.input.models):
-    plant = Plant(machine_from_config(read_yaml(path), name=machine_name, source=path))
-    plants[variant] = plant
+curves = {}
+for variant, plant in plants.items():
     nyquist = 0.5 / plant.machine.sample_time_s
     dense = np.logspace(0, np.log10(0.999 * nyquist), 2000)
     # lightly damped closed-loop modes have peaks narrower than any grid: evaluate at them too (as ambid.loop does)
