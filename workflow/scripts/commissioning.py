@@ -50,7 +50,9 @@ for row in table.itertuples():
     log.info("%s %-28s peak %.2f dB at %.0f Hz (zone %s)", row.axis, row.source, row.sensitivity_peak_db,
              row.sensitivity_peak_hz, row.iso_14839_zone)
 save_figure(sensitivity_zones(graded, curves, ISO_ZONE_LIMITS_DB,
-                              f"{machine_name} {run}: sensitivity |U2/Eu| per axis, measured and modelled (ISO 14839-3 zones)"),
+                              f"{machine_name} {run}: sensitivity |U2/Eu| per axis, "
+                              + ("modelled (measured not graded: see the table)" if ungraded else "measured and modelled")
+                              + " (ISO 14839-3 zones)"),
             snakemake.output.sensitivity_figure, snakemake.params.dpi)
 
 last = snakemake.params.variants[-1]
