@@ -18,8 +18,9 @@ import pytest
 import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
-from ambid.diagnose import (CELL_TAIL, Candidate, DiagnoseError, FreeParameter, candidate_space, chance_limit, diagnose,
-                            effect_label, joint_refit, misfit, misfit_cells, misfit_peaks, plant_with_effects)
+from ambid.diagnose import (CELL_TAIL, Candidate, DiagnoseError, FreeParameter, _Cells, bic_evidence, candidate_space,
+                            chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells, misfit_peaks,
+                            plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -542,3 +543,30 @@ def test_a_cell_at_the_floor_exceeds_its_chance_limit_as_rarely_as_meant():
     assert np.mean(cells > chance_limit(26)) == pytest.approx(CELL_TAIL, rel=0.25)
     assert np.mean(cells > 1 + 3 / np.sqrt(26)) > 3 * CELL_TAIL
     assert chance_limit(10_000) == pytest.approx(1 + 3 / np.sqrt(10_000), rel=1e-3)  # many points: the normal limit
+
+
+def test_evidence_channel_by_channel_discounts_gains_on_channels_the_model_misses_anyway():
+    """Two channels of 40 points in two bands each.  A candidate that takes one channel's low band from chi2 per point 6
+    to 3 (the model misses it either way, as a negative control's cross channels) earns plain evidence but little
+    channel by channel; one that takes it from 3 to the floor keeps its evidence; noise alone gains nothing."""
+    frequency = np.linspace(1.0, 1000.0, 40)
+    measured = {("DX", "DX"): (frequency, None, None), ("DY", "DY"): (frequency, None, None)}
+    cells = _Cells(measured, min_points=20)
+    rng = np.random.default_rng(3)
+    floor = (rng.standard_normal(80) + 1j * rng.standard_normal(80)) / np.sqrt(2)
+    low = np.zeros(80, dtype=bool)
+    low[:40] = frequency < frequency[20]  # the DX channel's low band: 20 points
+
+    def with_excess(chi2_per_point):
+        residual = floor.copy()
+        residual[low] *= np.sqrt(chi2_per_point / np.mean(np.abs(floor[low]) ** 2))
+        return residual
+
+    def plain(before, after):
+        return bic_evidence(np.vdot(before, before).real, np.vdot(after, after).real, 1, before.size)
+
+    before, after = with_excess(6.0), with_excess(3.0)
+    assert plain(before, after) > 100 and cells.channel_evidence(before, after, 1) < plain(before, after) / 2.5
+    before, after = with_excess(3.0), with_excess(1.0)
+    assert cells.channel_evidence(before, after, 1) == pytest.approx(plain(before, after), rel=0.05)
+    assert cells.channel_evidence(floor, floor, 1) == pytest.approx(-np.log(160))

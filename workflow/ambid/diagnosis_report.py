@@ -17,7 +17,7 @@ import yaml
 
 from .amplitude import AMPLITUDE_ERROR_ALIKE
 from .compare import channel_errors, model_response, summarize
-from .diagnose import INDISTINGUISHABLE_BIC, cell_name, effect_label
+from .diagnose import AT_FLOOR_EVIDENCE, INDISTINGUISHABLE_BIC, cell_name, effect_label
 from .effects import EFFECTS
 from .findings import Finding
 from .fingerprint import fingerprint, where_it_helps
@@ -147,14 +147,23 @@ def _cells_text(cells):
                      for r in cells.sort_values("chi2_per_point", ascending=False).itertuples())
 
 
+def _removes_text(fitted):
+    """What a missing effect removes: its share of the misfit above the floor, or, chosen where every cell is within
+    the floor (`ambid.diagnose.AT_FLOOR_EVIDENCE`), its evidence channel by channel."""
+    if fitted.share > 0:
+        return f"{100 * fitted.share:.1f} % of the misfit above the floor (BIC evidence {fitted.evidence:.4g})"
+    return (f"misfit that every channel family's cells hold within their floor, but on few channels and bands: BIC "
+            f"evidence {fitted.evidence:.4g}, {fitted.channel_evidence:.4g} with each channel and band weighed by the misfit "
+            f"it leaves there (missing beyond {AT_FLOOR_EVIDENCE:g})")
+
+
 def diagnosis_findings(diagnosis, stage="diagnose"):
     """What the user must know about a diagnosis, as `ambid.findings.Finding` rows."""
     out = []
     joint = diagnosis.joint.table if diagnosis.joint is not None else None
     for fitted in diagnosis.sequence:
         out.append(Finding(stage, "warning", "missing_effect", fitted.candidate.label,
-                           f"{fitted.candidate.label} is missing: it removes {100 * fitted.share:.0f} % of the misfit above "
-                           f"the floor (BIC evidence {fitted.evidence:.3g})", fitted.evidence))
+                           f"{fitted.candidate.label} is missing: it removes " + _removes_text(fitted), fitted.evidence))
     if joint is not None and not joint.empty:
         for row in joint.itertuples():
             if row.at_bound:
@@ -277,7 +286,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
         lines += [("**Missing: " if len(parts) == 1 else "**Missing, together: ") + "; ".join(parts) + "**.", ""]
         first = diagnosis.sequence[0]
         lines += [f"Chosen one after the other, then refitted jointly with the model's own parameters. The first removes "
-                  f"{100 * first.share:.1f} % of the misfit above the floor (BIC evidence {first.evidence:.4g}); it helps "
+                  f"{_removes_text(first)}; it helps "
                   f"most on {helps[diagnosis.ranked.index(first)]['channels']} and in the "
                   f"{helps[diagnosis.ranked.index(first)]['band']} band.", ""]
         if first.indistinguishable:
@@ -335,7 +344,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
-              "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | verdict |", "|---|---|---|---|---|---|"]
+              "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | channel by channel | verdict |",
+              "|---|---|---|---|---|---|---|"]
     for fitted, row in zip(diagnosis.ranked[:shown], table.head(shown).itertuples()):
         if fitted.missing:
             verdict = "missing"
@@ -343,12 +353,12 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             verdict = f"at bound ({', '.join(fitted.at_bound)})"
         elif not fitted.significant:
             verdict = "not significant"
-        elif fitted.share < 0.1:
-            verdict = "removes too little"
+        elif diagnosis.base_at_floor:
+            verdict = f"within the floor (channel by channel at most {AT_FLOOR_EVIDENCE:g})"
         else:
-            verdict = "model at the floor"
+            verdict = "removes too little"
         lines.append(f"| {row.rank} | {row.candidate} | {_marked_bounds(fitted)} | {share_text(fitted.share)} | "
-                     f"{row.evidence_bic:.4g} | {verdict} |")
+                     f"{row.evidence_bic:.4g} | {row.channel_evidence_bic:.4g} | {verdict} |")
     lines.append("")
     if diagnosis.sequence and joint is not None:
         lines += ["## Add it", "", "Append to a new variant's `effects:` in config/config.yaml "
