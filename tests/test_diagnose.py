@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
-from ambid.diagnose import (CELL_TAIL, Candidate, DiagnoseError, FreeParameter, _Cells, bic_evidence, candidate_space,
-                            chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells, misfit_peaks,
-                            plant_with_effects)
+from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, FreeParameter, _Cells, bic_evidence,
+                            candidate_space, chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells,
+                            misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -570,3 +570,23 @@ def test_evidence_channel_by_channel_discounts_gains_on_channels_the_model_misse
     before, after = with_excess(3.0), with_excess(1.0)
     assert cells.channel_evidence(before, after, 1) == pytest.approx(plain(before, after), rel=0.05)
     assert cells.channel_evidence(floor, floor, 1) == pytest.approx(-np.log(160))
+
+
+def test_an_effect_within_every_cells_floor_but_strong_channel_by_channel_is_missing():
+    """An added modal damping of 5e-5 on demo20 (synthetic, 0.3 % noise): no channel family and band rises above its
+    floor (the resonances' few points are diluted in their cells), but channel by channel its evidence is far beyond
+    `AT_FLOOR_EVIDENCE`: missing, with its value, and the report says how it was found."""
+    config = load_machine_config("demo20")
+    config["frequency_grid"]["radial"]["points"] = 80
+    machine = machine_from_config(config)
+    measured = synthetic_measurement(machine, [effect("modal_damping", damping_ratio=5e-5)], seed=2, relative_noise=3e-3)
+    candidates = [c for c in candidate_space(machine) if c.effect in ("modal_damping", "foundation_mode", "noncollocation")]
+    diagnosis = diagnose(machine, measured, candidates=candidates)
+    assert diagnosis.base_at_floor and not diagnosis.cells_before["above_floor"].any()
+    assert diagnosis.verdict == "missing" and [f.candidate.label for f in diagnosis.sequence] == ["modal_damping"]
+    first = diagnosis.sequence[0]
+    assert first.share == 0 and first.channel_evidence > AT_FLOOR_EVIDENCE
+    damping = diagnosis.joint.table.set_index("parameter").loc["modal_damping.damping_ratio"]
+    assert abs(damping["value"] - 5e-5) < max(3 * damping["std"], 0.1 * 5e-5)
+    message = next(f.message for f in diagnosis_findings(diagnosis) if f.code == "missing_effect")
+    assert "weighed by the misfit it leaves there" in message

@@ -344,7 +344,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
-              "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | channel by channel | verdict |",
+              "| rank | candidate | parameters | misfit above the floor removed | BIC evidence | evidence channel by channel | "
+              "verdict |",
               "|---|---|---|---|---|---|---|"]
     for fitted, row in zip(diagnosis.ranked[:shown], table.head(shown).itertuples()):
         if fitted.missing:
@@ -359,7 +360,9 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             verdict = "removes too little"
         lines.append(f"| {row.rank} | {row.candidate} | {_marked_bounds(fitted)} | {share_text(fitted.share)} | "
                      f"{row.evidence_bic:.4g} | {row.channel_evidence_bic:.4g} | {verdict} |")
-    lines.append("")
+    lines += ["", "*Evidence channel by channel*: the BIC evidence with each channel and band weighed by the misfit the "
+              "candidate leaves there (at least its floor), so what it gains where the model misses anyway counts less; "
+              f"where no cell is above the floor, a candidate is missing beyond {AT_FLOOR_EVIDENCE:g}.", ""]
     if diagnosis.sequence and joint is not None:
         lines += ["## Add it", "", "Append to a new variant's `effects:` in config/config.yaml "
                   "(`machines.<machine>.variants.<new variant>: {base: <this variant>, effects: [...]}`), "
