@@ -67,8 +67,8 @@ figures, row for row; the negative controls of seeds 2028-2032 went from 4 of 10
 20; hs_eden_like 2035 said "unexplained" for its I_Z row at chi2/pt 1.61 against the limit 1.59 of its 26 points, the
 normal approximation of the cell's chance limit; with the Gamma quantile (`ambid.diagnose.chance_limit`, 1.69 there)
 20 of 20, the other figures the same (46, 44, 50, 8 / 8).  Stop 39 (where no cell is above the floor, a candidate
-is missing if its evidence with each channel and band weighed by the misfit it leaves there exceeds
-`ambid.diagnose.AT_FLOOR_EVIDENCE`; a lead needs that evidence above 10 too): top-1 46 -> 48 of 50 (hs_eden_like's
+(output rows included) is missing if its evidence with each channel and band weighed by the misfit it leaves there
+exceeds `ambid.diagnose.AT_FLOOR_EVIDENCE`; a lead needs that evidence above 10 too): top-1 46 -> 48 of 50 (hs_eden_like's
 modal damping 2027, 296 channel by channel, and demo20's cross coupling 2026, 172, now named, with their parameters
 within 5 %), parameters 44 -> 46, final misfit 50 of 50, outside 8 / 8 and 8 / 8, negative controls 20 of 20 with a lead
 on 3 (was 10; their largest evidence channel by channel 35, plain 126).  The two misses left are demo20 2027's
