@@ -330,7 +330,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
     if joint is not None and not joint.table.empty:
         lines += ["## Joint refit", "",
                   "Every chosen effect and the model's own parameters refitted together (the model's own under a prior of "
-                  "its configured values, so what the data do not determine stays put; *determined* by the data alone: "
+                  "its configured values, so what the data do not determine stays put; **determined** by the data alone: "
                   "their relative standard deviation, without the prior, below "
                   f"{diagnosis.determined_std:g}).", "",
                   "| parameter | origin | before | joint value +- std | determined |", "|---|---|---|---|---|"]
@@ -360,7 +360,7 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             verdict = "removes too little"
         lines.append(f"| {row.rank} | {row.candidate} | {_marked_bounds(fitted)} | {share_text(fitted.share)} | "
                      f"{row.evidence_bic:.4g} | {row.channel_evidence_bic:.4g} | {verdict} |")
-    lines += ["", "*Evidence channel by channel*: the BIC evidence with each channel and band weighed by the misfit the "
+    lines += ["", "**Evidence channel by channel**: the BIC evidence with each channel and band weighed by the misfit the "
               "candidate leaves there (at least its floor), so what it gains where the model misses anyway counts less; "
               f"where no cell is above the floor, a candidate is missing beyond {AT_FLOOR_EVIDENCE:g}.", ""]
     if diagnosis.sequence and joint is not None:
