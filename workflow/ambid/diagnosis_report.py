@@ -188,7 +188,8 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
     lead = diagnosis.lead
     if lead is not None:
         out.append(Finding(stage, "note", "lead", lead.candidate.label,
-                           f"the data favour {lead.candidate.label} (BIC evidence {lead.evidence:.3g}), but the misfit it "
+                           f"the data favour {lead.candidate.label} (BIC evidence {lead.evidence:.3g}, "
+                           f"{lead.channel_evidence:.3g} channel by channel), but the misfit it "
                            "would remove lies within the floor: a lead to check with more data, not an effect to add",
                            lead.evidence))
     unexplained = diagnosis.unexplained
@@ -271,7 +272,9 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                            for p, v, s in zip(lead.candidate.free, lead.values, lead.std))
         where = helps[diagnosis.ranked.index(lead)]
         lines += [f"A lead, not a finding: the data favour `{lead.candidate.label}` ({values}; BIC evidence "
-                  f"{lead.evidence:.4g}, most on {where['channels']}, {where['band']} band), but the misfit it would remove "
+                  f"{lead.evidence:.4g}, {lead.channel_evidence:.4g} channel by channel against the "
+                  f"{AT_FLOOR_EVIDENCE:g} a missing effect needs there; most on {where['channels']}, {where['band']} band), "
+                  "but the misfit it would remove "
                   f"lies within the floor{' of the model retuned below' if diagnosis.verdict == 'retune' else ''}. Whether "
                   "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts."
                   + (" " + _describing_function("the lead") if repeated_steps == 0 else ""), ""]
