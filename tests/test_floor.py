@@ -518,3 +518,36 @@ def test_a_resonance_between_two_pairs_gets_the_amplitude_error_of_its_amplifica
                 assert abs(value / truth - 1) > 0.03, (output, input_axis)  # the amplitude error is there
                 worst = max(worst, abs(value - truth) / stated)
         assert worst < 3.0, (floor_settings.zero_amplitude, worst)
+
+
+@pytest.mark.xfail(strict=True, reason="known gap (stop 39): a MIMO cross element whose own pairs are noise keeps the "
+                   "describing function's error with no floor for it")
+def test_a_mimo_cross_element_states_the_amplitude_error_of_its_bearings():
+    """hs_eden_like's rig (no hidden effect, seed 2036) at 60-200 Hz, every other step repeated at half the amplitude:
+    the cross elements DX/NX and DY/NY depart from the linearized model by up to 1-2 % (the force law's describing
+    function), beyond their noise (0.3 %), and their own pairs are too noisy to show it, so `ambid.amplitude` leaves
+    them at their amplitude and `ambid.floor` gives them no floor: the largest |error| / stated error of DX/NX, NX/DX,
+    DY/NY, NY/DY is 4.4, 2.7, 1.4, 1.8.  On 7 of the suite's 10 hs_eden_like negative controls such a cell (below 200
+    Hz) sits at chi2 per point 2.2-6.1, and a sensor shift earns BIC evidence up to 126 from it as the diagnosis' lead.
+    Tried at stop 39: the larger relative error of the diagonal elements in the element's row and column as its floor
+    (1.3, 2.7, 1.1, 1.2 here; the hs negative controls without a lead) cost the suite's hs delay + foundation pair its
+    weak foundation mode (top-1 48 -> 47 of 50): the floor of a cross element needs its own estimate, e.g. from the
+    MIMO repeats' amplitude coefficients fitted as one matrix."""
+    root = Path(__file__).resolve().parents[1]
+    settings = replace(settings_from_config(yaml.safe_load((root / "config/config.yaml").read_text())["identification"]),
+                       axes=RADIAL_AXES)
+    machine_config = yaml.safe_load((root / "config/machines/hs_eden_like.yaml").read_text())
+    machine_config["frequency_grid"]["radial"].update(start_hz=60.0, stop_hz=200.0, points=15)
+    machine = machine_from_config(machine_config)
+    plan = StepPlan.for_machine(Plant(machine), settings)
+    records, _ = run_stepped_sine(RigModel(hidden_effect_rig(machine_config, [])), plan, settings, seed=2036)
+    table, _, _ = frf_from_log(identification_frame(records), ZERO_AMPLITUDE)
+    worst = {}
+    for output, input_axis in [("DX", "NX"), ("NX", "DX"), ("DY", "NY"), ("NY", "DY")]:
+        rows = table[(table["estimator"] == "mimo") & (table["output"] == output) & (table["input"] == input_axis)]
+        frequency = rows["frequency_hz"].to_numpy()
+        values = (rows["re"] + 1j * rows["im"]).to_numpy()
+        predicted = model_response(Plant(machine), {(output, input_axis): (frequency,)})[(output, input_axis)]
+        stated = np.hypot(rows["std"], rows["systematic_std"]).to_numpy()
+        worst[(output, input_axis)] = float(np.max(np.abs(values - predicted) / stated))
+    assert max(worst.values()) < 3.5, worst
