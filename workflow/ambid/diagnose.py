@@ -11,9 +11,9 @@ currents) and frequency band (`ambid.floor.frequency_bands` of the measured
 grid): a cell is *above the floor* when its ``chi2`` per point exceeds
 ``max(limit, chance_limit(n))`` (``limit`` 1.5: the band the true model keeps on
 a rig whose floor is measured; `chance_limit`: what ``n`` points at the floor
-exceed by chance, the 3-sigma tail of their Gamma distribution).  Where no cell is above the floor, a candidate must
-earn `AT_FLOOR_EVIDENCE` channel by channel (below) to be missing, whatever it would gain from fitting the noise.  The misfit the
-chosen effects leave is also read per output row over all bands (`_Cells`): one
+exceed by chance, the 3-sigma tail of their Gamma distribution).  Where no cell is above the floor, a candidate
+must earn `AT_FLOOR_EVIDENCE` channel by channel (below) to be missing, whatever it would gain from fitting the
+noise.  The misfit the chosen effects leave is also read per output row over all bands (`_Cells`): one
 sensor's gain error is spread over every band, and a band pools four sensors.
 
 **Candidates** (`candidate_space`): each effect of the library, with its few
@@ -72,16 +72,17 @@ from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
            "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells",
-           "cell_name", "plant_with_effects", "correlation_time", "bic_evidence", "INDISTINGUISHABLE_BIC", "AT_FLOOR_EVIDENCE"]
+           "cell_name", "plant_with_effects", "correlation_time", "bic_evidence", "INDISTINGUISHABLE_BIC",
+           "AT_FLOOR_EVIDENCE"]
 
 #: BIC difference below which two candidates explain the data equally well (Kass & Raftery 1995: > 10 is very strong).
 INDISTINGUISHABLE_BIC = 10.0
 #: A parameter this close to a bound (fraction of its search span) has run into it.
 AT_BOUND = 1e-3
-#: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit the
-#: candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The suite's 20 negative controls
-#: (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden effects its cells cannot see 172
-#: and 296; three times the controls' largest.
+#: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
+#: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
+#: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
+#: effects its cells cannot see 172 and 296; three times the controls' largest.
 AT_FLOOR_EVIDENCE = 100.0
 
 
@@ -1026,8 +1027,8 @@ class Diagnosis:
                 "parameter_std": ", ".join(f"{p.name}={s:.3g}" for p, s in zip(fitted.candidate.free, fitted.std)),
                 "at_bound": ", ".join(fitted.at_bound), "k": len(fitted.candidate.free), "chi2": fitted.chi2,
                 "chi2_per_point": fitted.chi2 / self.points, "excess_removed": removed, "share_above_floor": fitted.share,
-                "evidence_bic": fitted.evidence,
-                "channel_evidence_bic": fitted.channel_evidence, "significant": fitted.significant, "missing": fitted.missing,
+                "evidence_bic": fitted.evidence, "channel_evidence_bic": fitted.channel_evidence,
+                "significant": fitted.significant, "missing": fitted.missing,
                 "indistinguishable_from": ", ".join(fitted.indistinguishable), "evaluations": fitted.evaluations,
             })
         return pd.DataFrame(rows)
