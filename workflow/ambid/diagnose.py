@@ -666,10 +666,11 @@ def _rank(fitted, chi2, residual, evaluator, settings):
     """Evidence, share of the excess above the floor and the verdict of each candidate; best first."""
     points = residual.size
     cells = evaluator.cells
-    above = cells.above(cells.chi2(residual), settings.floor_limit)
+    per_point = cells.chi2(residual)
+    above = cells.above(per_point, settings.floor_limit)
     # misfit in one output row over all bands, the bands within the floor: a sensor's gain (outside the library), which
     # the per-axis actuator coefficients imitate; it is unexplained, not found channel by channel (`_Cells`)
-    row_above = cells.above(cells.chi2(residual), settings.floor_limit, rows=True).any()
+    row_above = cells.above(per_point, settings.floor_limit, rows=True).any()
     excess = cells.excess(residual, above)
     best_chi2 = min([f.chi2 for f in fitted] + [chi2])
     overdispersion = max(1.0, best_chi2 / points)
