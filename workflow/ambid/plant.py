@@ -38,6 +38,21 @@ def damping_ratio(poles):
     return np.where(magnitude > 0, -poles.real / np.where(magnitude > 0, magnitude, 1.0), 0.0)
 
 
+_MODAL_SUM_PATHS = {}  # operand shapes -> the contraction order np.einsum(optimize=True) finds for them
+
+
+def _modal_sum(left, resolvent, right):
+    """``sum_k left[o, k] resolvent[f, k] right[k, i]``, (n_freq, n_out, n_in), in the order ``optimize=True`` picks.
+
+    The order is found once per shapes: finding it cost as much as the sum itself (a diagnosis evaluates the model
+    some ten thousand times on one grid).
+    """
+    key = (left.shape, resolvent.shape, right.shape)
+    if key not in _MODAL_SUM_PATHS:
+        _MODAL_SUM_PATHS[key] = np.einsum_path("ok,fk,ki->foi", left, resolvent, right, optimize=True)[0]
+    return np.einsum("ok,fk,ki->foi", left, resolvent, right, optimize=_MODAL_SUM_PATHS[key])
+
+
 @dataclass(frozen=True)
 class SecondOrderModel:
     """``M q'' + (D + Omega G) q' + K q = B u``, ``y = C q`` (stiffness includes the bearings)."""
@@ -61,25 +76,27 @@ class SecondOrderModel:
         """
         frequency_hz = np.asarray(frequency_hz, dtype=float)
         a, b, c = self.state_space()
+        if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(c).all()):
+            raise ModelError("the structural model has non-finite entries (mass, damping, stiffness or shapes)")
         poles, left, right = [], [], []
         # one eigen-decomposition per uncoupled block (the x and y planes of a rotor at standstill): the same modes
         # at about half the cost of one of the whole
         for states in self.uncoupled_states():
             block = np.concatenate([states, states + self.mass.shape[0]])
-            block_poles, vectors = scipy.linalg.eig(a[np.ix_(block, block)])
+            block_poles, vectors = scipy.linalg.eig(a[np.ix_(block, block)], check_finite=False)  # (checked above)
             # the eigenvectors' condition from their LU factors (LAPACK gecon's 1-norm estimate), which also solve for
             # V^-1 B
-            factors = scipy.linalg.lu_factor(vectors)
+            factors = scipy.linalg.lu_factor(vectors, check_finite=False)
             gecon = scipy.linalg.get_lapack_funcs("gecon", (factors[0],))
             reciprocal_condition, _ = gecon(factors[0], np.linalg.norm(vectors, 1), norm="1")
             if not reciprocal_condition > 1e-8:
                 break
             poles.append(block_poles)
             left.append(c[:, block] @ vectors)
-            right.append(scipy.linalg.lu_solve(factors, b[block].astype(complex)))
+            right.append(scipy.linalg.lu_solve(factors, b[block].astype(complex), check_finite=False))
         else:
             resolvent = 1.0 / (2j * np.pi * frequency_hz[:, None] - np.concatenate(poles)[None, :])
-            return np.einsum("ok,fk,ki->foi", np.hstack(left), resolvent, np.vstack(right), optimize=True)
+            return _modal_sum(np.hstack(left), resolvent, np.vstack(right))
         w = 2 * np.pi * frequency_hz[:, None, None]
         dynamic = self.stiffness - w**2 * self.mass + 1j * w * (self.damping + self.speed_rad_s * self.gyroscopic)
         return self.output_matrix @ np.linalg.solve(dynamic, self.input_matrix.astype(complex))
