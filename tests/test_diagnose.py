@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
-from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, FreeParameter, _Cells, bic_evidence,
-                            candidate_space, chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells,
-                            misfit_peaks, plant_with_effects)
+from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, FreeParameter, _Cells, _least_bic,
+                            bic_evidence, candidate_space, chance_limit, diagnose, effect_label, joint_refit, misfit,
+                            misfit_cells, misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
@@ -590,3 +590,21 @@ def test_an_effect_within_every_cells_floor_but_strong_channel_by_channel_is_mis
     assert abs(damping["value"] - 5e-5) < max(3 * damping["std"], 0.1 * 5e-5)
     message = next(f.message for f in diagnosis_findings(diagnosis) if f.code == "missing_effect")
     assert "weighed by the misfit it leaves there" in message
+
+
+def test_candidates_the_data_cannot_tell_apart_keep_their_order():
+    """Two refits whose chi2 differ in the last digits (hs_eden_like's input and output cross couplings on the
+    independent rig's log) keep the order they came in; a real difference of BIC decides."""
+    from types import SimpleNamespace
+
+    def refit(label, chi2, parameters=1):
+        free = (FreeParameter("coefficient", -0.2, 0.2),) * parameters
+        return SimpleNamespace(candidate=Candidate(label, "cross_coupling", free)), SimpleNamespace(chi2=chi2, residual=np.zeros(5200))
+
+    first, second = refit("cross_coupling[input]", 3594.2067190001), refit("cross_coupling[output]", 3594.2067190000)
+    assert _least_bic([first, second]) is first[0] and _least_bic([second, first]) is second[0]
+    better = refit("cross_coupling[output]", 3590.0)
+    assert _least_bic([first, better]) is better[0]
+    # a parameter more costs ln(2N) of BIC: the simpler of two equal fits wins whatever the order
+    richer = refit("element_stiffness[motor]", 3594.2067190000, parameters=2)
+    assert _least_bic([richer, first]) is first[0]

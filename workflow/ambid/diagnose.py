@@ -1077,10 +1077,18 @@ def _variant(joint):
 
 def _least_bic(refits):
     """Of ``(candidate, JointFit)`` pairs, the candidate of least ``BIC = 2 chi2 / c + k ln(2N)`` (``c`` the least
-    ``chi2`` per point among them, at least 1)."""
+    ``chi2`` per point among them, at least 1).
+
+    The first of those within rounding (1e-9 relative) of the least: candidates the data cannot tell apart keep the
+    order they come in (the round's ranking; in `_swap` the effect chosen before).  On the independent rig's
+    hs_eden_like log with an input cross coupling, the input and output couplings fit to the same chi2 to ten digits,
+    and the last digit decided which one the diagnosis named.
+    """
     points = refits[0][1].residual.size
     overdispersion = max(1.0, min(j.chi2 for _, j in refits) / points)
-    return min(refits, key=lambda fj: 2 * fj[1].chi2 / overdispersion + len(fj[0].candidate.free) * np.log(2 * points))[0]
+    bic = [2 * j.chi2 / overdispersion + len(f.candidate.free) * np.log(2 * points) for f, j in refits]
+    least = min(bic)
+    return next(f for (f, _), b in zip(refits, bic) if b <= least + 1e-9 * max(1.0, abs(least)))
 
 
 def _swap(machine, measured, chosen, rounds, settings, cells, joint):
