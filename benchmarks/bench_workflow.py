@@ -8,10 +8,17 @@ runs, the whole workflow from clean with --cores 1 and --cores 2; the ratio is t
 
 Usage: ``.venv/bin/python benchmarks/bench_workflow.py [N] [R]`` (defaults 2 2).  Run on an idle machine:
 every figure is wall time.  Copies of config/ and the shipped example log go to a temporary folder.
+
+``bench_workflow.py --against REV [K]`` runs instead the default configuration from clean with --cores 2, K times
+(default 2) with this tree and K times with the commit REV (exported with ``git archive``, its own library on the
+path), alternating ABBA, and prints their medians and ratio.  The same commit's figure moved by 15 % within an hour on
+the 2-core machine of stop 40 (127.6 s, then 148.1 s): a change's effect is the ratio, not one run's wall time.
 """
 
+import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -24,10 +31,12 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_LOG = "data/demo20/thesis01/identification.m"
 
 
-def snakemake(workdir, *args):
+def snakemake(workdir, *args, root=ROOT):
+    """Run the workflow of the tree ``root`` (its Snakefile and library) in ``workdir``: (wall s, output)."""
     started = time.perf_counter()
-    result = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(ROOT / "Snakefile"), "-d", str(workdir), *args],
-                            capture_output=True, text=True)
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root / "workflow"), os.environ.get("PYTHONPATH", "")])}
+    result = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(root / "Snakefile"), "-d", str(workdir), *args],
+                            capture_output=True, text=True, env=environment)
     if result.returncode != 0:
         raise SystemExit(result.stderr[-3000:])
     return time.perf_counter() - started, result.stdout + result.stderr
@@ -41,12 +50,37 @@ def jobs(output):
     return {rule: int(count) for rule, count in re.findall(r"^(\w+)\s+(\d+)\s*$", table, re.M)}
 
 
-def working_directory(parent, name):
+def working_directory(parent, name, root=ROOT):
     workdir = parent / name
-    shutil.copytree(ROOT / "config", workdir / "config")
+    shutil.copytree(root / "config", workdir / "config")
     (workdir / EXAMPLE_LOG).parent.mkdir(parents=True)
-    shutil.copy(ROOT / EXAMPLE_LOG, workdir / EXAMPLE_LOG)
+    shutil.copy(root / EXAMPLE_LOG, workdir / EXAMPLE_LOG)
     return workdir
+
+
+def tree_at(revision, parent):
+    """The repository at ``revision`` (``git archive``), its library compiled as `make run` compiles it."""
+    tree = parent / f"tree_{revision}"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", revision], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "workflow" / "ambid")], check=True)
+    return tree
+
+
+def part_against(parent, revision, rounds):
+    trees = {revision: tree_at(revision, parent), "this tree": ROOT}
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "workflow" / "ambid")], check=True)
+    walls = {label: [] for label in trees}
+    for r in range(rounds):
+        for label in (list(trees) if r % 2 == 0 else list(trees)[::-1]):  # ABBA: a drift of the machine cancels
+            workdir = working_directory(parent, f"against_{r}_{len(walls[label])}_{label.replace(' ', '_')}", trees[label])
+            wall, output = snakemake(workdir, "--cores", "2", root=trees[label])
+            walls[label].append(wall)
+            print(f"round {r + 1}, {label:10s}: {wall:6.1f} s wall, {sum(jobs(output).values())} jobs", flush=True)
+    base, this = (statistics.median(walls[label]) for label in trees)
+    print(f"median {revision}: {base:6.1f} s, this tree: {this:6.1f} s; ratio this / {revision}: {this / base:.3f} "
+          f"(target: the default run <= 120 s on 2 cores)")
 
 
 def part_default(parent):
@@ -100,6 +134,10 @@ def part_scale(parent, machines, runs):
 
 
 def main():
+    if sys.argv[1:2] == ["--against"]:
+        with tempfile.TemporaryDirectory() as parent:
+            part_against(Path(parent), sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 2)
+        return
     machines, runs = (int(a) for a in (sys.argv[1:3] + ["2", "2"][len(sys.argv[1:3]):]))
     with tempfile.TemporaryDirectory() as parent:
         part_default(Path(parent))
