@@ -368,8 +368,8 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
     lines there, and the first-order noise of ``log G`` is the relative noise
     ``std / |G|``.  On the axial position of the suite's rigs without a hidden
     effect (26 steps, 1-100 Hz), the quadratic's own error on the noise-free plant
-    came to 1-70 times the noise variance at the band's ends and 0.2-0.4 at its
-    median, so the scatter never showed that the noise is stated 2.5 times too
+    came to 1-70 times the stated noise variance at the band's ends and 0.2-0.4 at
+    its median, so the scatter never showed that the noise is stated 2.5 times too
     large (chi2 per point 0.15-0.6 of the true model); of ``log G``, 0.03-0.08.
     A channel whose median ``|G| / std`` is below `RESOLVED` (or that reads zero
     somewhere) is fitted as it is: its logarithm would be mostly noise.
@@ -571,7 +571,8 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
     # closed loop correlates the noise of U2 with that of V2 and of the coil currents): scaled down to the scatter,
     # point by point from the mean over the neighbouring steps (a mean, as chi2 is: rare large errors count) of the
     # points whose local fit is centred on them: at a channel's ends the window is shifted and its polynomial
-    # extrapolates (the axial rigid body's three lowest steps: 2-5 times the noise variance on the noise-free plant)
+    # extrapolates (the axial rigid body's three lowest steps, of log G on the noise-free plant: 2-5 times the stated
+    # noise variance)
     frequency = table["frequency_hz"].to_numpy()
     edges = {family: frequency_bands(frequency[families == family], settings.min_band_points) for family in set(families)}
     band_index = np.zeros(len(table), dtype=int)
