@@ -78,7 +78,11 @@ seed's negative control has a foundation-mode lead of 31.  Out of sample (``--fi
 top-1 50 of 50, parameters 48 (hs_eden_like's sensor shift 13.9 and 17.8 % off on both seeds, about 10 sigma: its
 cross channels below 200 Hz carry the describing function's error unfloored, `tests/test_floor.py`'s strict xfail),
 final misfit 49 of 50, outside 8 / 8 and 8 / 8, negative controls 19 of 20 (demo20 2045: the I_NX row at chi2/pt 1.53
-against 1.5, "unexplained").  About 10 minutes.
+against 1.5, "unexplained").  Stop 40 (the axial noise from the scatter of log G, `ambid.floor.channel_smooth_fit_ratio`,
+and every channel's noise scale from the steps its local fit is centred on): in sample row for row the same verdicts,
+top-1 48 of 50, parameters 46, final misfit 50 of 50, outside 8 / 8 and 8 / 8, negative controls 20 of 20 (a lead on
+4); out of sample top-1 50 of 50, parameters 48, final misfit 49 of 50, outside 8 / 8 and 8 / 8, negative controls 20
+of 20 (demo20 2045 now "nothing").  About 10 minutes.
 """
 
 import concurrent.futures

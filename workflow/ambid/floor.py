@@ -385,9 +385,7 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
     """
     values, std = np.asarray(values), np.asarray(std, dtype=float)
     magnitude = np.abs(values)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        resolved = magnitude.size > 0 and np.all(magnitude > 0) and np.median(magnitude / std) > RESOLVED
-    if not resolved:
+    if not (magnitude.size > 0 and np.all(magnitude > 0) and _resolved(magnitude, std)):
         return smooth_fit_ratio(frequency_hz, values, std, half_width)
     # relative to the channel's median point: a constant the fit absorbs, but log|G| of ~ -14 and a phase of ~ pi
     # would carry rounding of 1e-15 into a residual of 1e-4 (the same log as a thesis .m and as a CSV in um then
@@ -395,6 +393,12 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
     ratio = values / values[np.argsort(magnitude)[magnitude.size // 2]]
     return smooth_fit_ratio(frequency_hz, np.log(np.abs(ratio)) + 1j * np.unwrap(np.angle(ratio)), std / magnitude,
                             half_width)
+
+
+def _resolved(magnitude, std):
+    """Whether a channel's response stands out of its noise: its median ``|G| / std`` above `RESOLVED`."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return bool(np.median(magnitude / std) > RESOLVED)
 
 
 def _running_mean(values, half_width):
@@ -555,7 +559,7 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
         if estimator == "mimo" and (estimates is None or estimates[0].size < settings.min_pairs):
             estimates = coefficients.get(("siso", output, input_axis))
         if estimates is not None and estimates[0].size >= settings.min_pairs:
-            if np.median(magnitude[order] / table.loc[order, "std"].to_numpy()) > RESOLVED:
+            if _resolved(magnitude[order], table.loc[order, "std"].to_numpy()):
                 kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
                 # a resonance between two pairs: its amplitude error grows with its amplification
                 kappa = kappa * np.maximum(resonance_ratio(frequency, magnitude[order], estimates[0]), 1.0)
