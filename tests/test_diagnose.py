@@ -11,6 +11,7 @@ this file runs one seed of it, on shorter grids from 5 Hz (`small_grid`).
 """
 
 import functools
+import re
 
 import numpy as np
 import pandas as pd
@@ -433,7 +434,7 @@ def test_close_contenders_are_told_apart_by_the_joint_refit(identification):
     contenders = dict(diagnosis.sequence[1].contenders)
     assert "delay" in contenders and contenders["sensor_lowpass"] < contenders["delay"]
     _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "contenders")
-    assert "`sensor_lowpass` was chosen over `delay`" in page
+    assert re.search(r"`sensor_lowpass` was chosen over (`\w+`, )*`delay`", page), page  # (with any other contenders)
     assert "the same as a first-order lag of the force" in page  # what else a sensor pole on positions can be
 
 

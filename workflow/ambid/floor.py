@@ -376,12 +376,12 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
 
     `systematic_floor` fits the axial family so.  The radial channels keep the
     fit of ``G``: of ``log G``, their noise below 200 Hz came out up to a quarter
-    lower, and there hs_eden_like's MIMO cross elements carry the describing
-    function's 1-2 % error with no floor of their own (`tests/test_floor.py`'s
-    strict xfail); two of ten out-of-sample negative controls (seeds 2041 and 2046)
-    then had the 1-200 Hz position band or the DX row above the floor, one read as a
-    0.19 mm sensor shift.  Until those elements have their floor, the bias of the
-    fit of ``G`` stands in for it there.
+    lower, and there hs_eden_like's MIMO cross elements then carried the describing
+    function's 1-2 % error with no floor of their own; two of ten out-of-sample
+    negative controls (seeds 2041 and 2046) had the 1-200 Hz position band or the
+    DX row above the floor, one read as a 0.19 mm sensor shift (stop 40).  Those
+    elements now take their error from the diagonals
+    (`ambid.amplitude._mimo_inversion_errors`).
     """
     values, std = np.asarray(values), np.asarray(std, dtype=float)
     magnitude = np.abs(values)
