@@ -633,6 +633,8 @@ def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse():
         truth = error[:, axes.index(output), axes.index(input_axis)]
         assert np.all(np.abs(value - truth) < 1e-6 * np.abs(truth)), (output, input_axis)
         assert np.all(variance > 0) and np.all(systematic == 0)
+    arrays[axes[0]][1][2, CHANNELS.index(f"U2_{axes[1]}")] = np.nan  # a run without the other axes' inputs: nothing
+    assert _mimo_inversion_errors(channels, np.concatenate(values), arrays) == {}
 
 
 def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():

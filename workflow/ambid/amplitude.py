@@ -176,7 +176,7 @@ def _mimo_inversion_errors(channels, values, arrays):
         ``("mimo", output, input) -> (error, variance, systematic)`` at the element's rows (`level_pairs`
         order): the absolute error ``P - G``, its noise variance (the diagonals' propagated) and its systematic
         error (the diagonals' interpolation error, propagated); empty where the four diagonals are not all
-        repeated on one grid, or none of them measures its dependence.
+        repeated on one grid, none of them measures its dependence, or the matrices are not finite.
     """
     axes = list(RADIAL_AXES)
     keys = [[("mimo", o, i) for i in axes] for o in axes]
@@ -191,18 +191,25 @@ def _mimo_inversion_errors(channels, values, arrays):
     grid = arrays[axes[0]][0]
     at = np.clip(np.searchsorted(grid, frequency), 0, grid.size - 1)
     inputs = np.stack([arrays[r][1][at][:, [CHANNELS.index(f"U2_{b}") for b in axes]] for r in axes], axis=2)
+    if not (np.all(np.isfinite(plant)) and np.all(np.isfinite(inputs)) and np.all(np.einsum("nee->ne", plant) != 0)):
+        return {}
     inverse = np.linalg.inv(inputs)  # W (n, run, column)
     delta = np.stack([d["correction"] for d in diagonal], axis=1)
     delta_variance = np.stack([d["correction_variance"] for d in diagonal], axis=1)
     delta_systematic = np.stack([d["relative_error"] for d in diagonal], axis=1)
     diagonal_plant = np.einsum("nee->ne", plant)
     jacobian = np.einsum("ner,nre->ner", plant, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
-    solve = np.linalg.inv(jacobian)
-    column, identity = np.einsum("ned,nd->ne", solve, delta), np.eye(len(axes))
-    for _ in range(4):
-        linearized = plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
-        column -= np.einsum("ned,nd->ne", solve, diagonal_plant / np.einsum("nee->ne", linearized) - 1 - delta)
-    error = plant - plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
+    try:
+        solve = np.linalg.inv(jacobian)
+        column, identity = np.einsum("ned,nd->ne", solve, delta), np.eye(len(axes))
+        for _ in range(4):
+            linearized = plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
+            column -= np.einsum("ned,nd->ne", solve, diagonal_plant / np.einsum("nee->ne", linearized) - 1 - delta)
+        error = plant - plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
+    except np.linalg.LinAlgError:
+        return {}
+    if not np.all(np.isfinite(error)):
+        return {}
     # E[o, e] = sum_r P[o, r] W[r, e] c_r to first order: its sensitivity to each diagonal's delta_d
     sensitivity = np.einsum("nor,nre,nrd->noed", plant, inverse, solve)
     variance = np.einsum("noed,nd->noe", np.abs(sensitivity) ** 2, delta_variance)
