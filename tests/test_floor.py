@@ -639,8 +639,9 @@ def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse():
 
 def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():
     """`ambid.amplitude._structured_zero`: pairs that agree with the predicted error within their noise take it (no
-    departure added); pairs that depart from it by far more than their noise refute it (None); a departure within
-    `MEASURED_KAPPA` is stated as that fraction of the error."""
+    departure added); pairs that depart from it by far more than their noise refute it (None); a departure between
+    `DEPARTURE` and `MEASURED_KAPPA` standard deviations is stated as that fraction of the error; an element inside its
+    noise keeps the old path (None)."""
     from ambid.amplitude import _structured_zero
 
     rng = np.random.default_rng(5)
@@ -657,10 +658,15 @@ def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():
         return pair_noise * (rng.normal(size=size) + 1j * rng.normal(size=size)) / np.sqrt(2)
 
     inversion = (error, np.full(n, 1e-24), np.zeros(n))
-    zero, _, systematic = _structured_zero(channel(error[repeated] + noise(repeated.size)), inversion, measured)
+    point_noise = np.full(n, 1e-9)
+    zero, _, systematic = _structured_zero(channel(error[repeated] + noise(repeated.size)), inversion, measured,
+                                           point_noise)
     assert np.allclose(zero, measured - error)
     assert np.all(systematic < 0.3 * np.abs(error))  # the noise-debiased departure of agreeing pairs is small
-    assert _structured_zero(channel(2 * error[repeated] + noise(repeated.size)), inversion, measured) is None
+    assert _structured_zero(channel(2 * error[repeated] + noise(repeated.size)), inversion, measured, point_noise) is None
+    assert _structured_zero(channel(error[repeated]), inversion, measured, np.full(n, 1e-6)) is None  # inside its noise
+    # a tenth of the error, below a pair noise of a fifth of it: no departure
+    assert np.all(_structured_zero(channel(1.1 * error[repeated]), inversion, measured, point_noise)[2] == 0)
     # a quarter of the error beyond a pair noise of a fifth of it (2.5 standard deviations over 20 pairs): 15 %
-    _, _, systematic = _structured_zero(channel(1.25 * error[repeated]), inversion, measured)
+    _, _, systematic = _structured_zero(channel(1.25 * error[repeated]), inversion, measured, point_noise)
     assert np.allclose(systematic / np.abs(error), np.sqrt(0.25**2 - 0.2**2), rtol=1e-4)

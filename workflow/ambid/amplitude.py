@@ -59,7 +59,7 @@ the interpolation's error already counts, and the stated noise stays.  This is b
 
 import numpy as np
 
-from .floor import excitation_amplitude_squared, family_of, level_pairs, resonance_ratio
+from .floor import _resolved, excitation_amplitude_squared, family_of, level_pairs, resonance_ratio
 from .logs import CHANNELS
 from .machine import RADIAL_AXES
 
@@ -73,6 +73,10 @@ AMPLITUDE_ERROR_ALIKE = ("actuator_coefficients", "noncollocation")
 #: A channel's amplitude dependence is measured where its pairs put it this many standard deviations from zero
 #: (`amplitude_dependence`).
 MEASURED_KAPPA = 5.0
+
+#: A MIMO cross element's pairs state a departure from the error the diagonals predict for it where they put it this
+#: many standard deviations beyond their noise (`_structured_zero`; beyond `MEASURED_KAPPA` they refute it).
+DEPARTURE = 2.0
 
 
 def amplitude_dependence(kappa, variance):
@@ -218,15 +222,19 @@ def _mimo_inversion_errors(channels, values, arrays):
             for o in range(len(axes)) for e in range(len(axes)) if o != e}
 
 
-def _structured_zero(channel, inversion, measured):
+def _structured_zero(channel, inversion, measured, noise):
     """A MIMO cross element at zero amplitude from `_mimo_inversion_errors`, tested against its own pairs, or None.
 
     Its own pairs measure ``G(A) - G_0 = lambda (G(A) - G(A_1))``, too noisy to
     extrapolate it by themselves but enough to refute the diagonals' prediction:
     where they depart from it by more than `MEASURED_KAPPA` standard deviations
-    (`amplitude_dependence`) it is not used (None), and their rms departure beyond
-    their noise, as a fraction of the predicted error, joins its systematic error
-    (that fraction of the error at every step).
+    (`amplitude_dependence`) it is not used (None); where they depart by more
+    than `DEPARTURE` standard deviations, their rms departure beyond their noise,
+    as a fraction of the predicted error, joins its systematic error (that fraction
+    of the error at every step).  Below that the departure is their noise: counted,
+    it stated the cross elements of hs_eden_like's default run at chi2 per point
+    0.25-0.39.  An element whose response is inside its noise (`ambid.floor.RESOLVED`)
+    keeps the old path: its pairs are ratios of noise.
 
     Returns
     -------
@@ -234,17 +242,18 @@ def _structured_zero(channel, inversion, measured):
         ``(zero, noise, systematic)`` at the channel's rows; ``noise`` is the prediction's only (the measured
         point's adds to it).
     """
-    if inversion is None:
+    if inversion is None or not _resolved(np.abs(measured), noise):
         return None
     error, variance, systematic = inversion
     repeated = channel["repeated"]
     difference = channel["pair_change"] - error[repeated]
     expected = channel["pair_change_variance"] + variance[repeated]
-    if amplitude_dependence(difference, expected) > MEASURED_KAPPA:
+    significance = amplitude_dependence(difference, expected)
+    if significance > MEASURED_KAPPA:
         return None
-    # the prediction's own error, as a fraction of it (a first-order model errs in proportion to what it predicts;
-    # a ratio of sums, so a pair where the element or its error passes near zero does not decide it)
-    beyond = float(np.sum(np.abs(difference) ** 2 - expected))
+    # the prediction's own error, as a fraction of it (a model of the force law's change errs in proportion to what it
+    # predicts; a ratio of sums, so a pair where the element or its error passes near zero does not decide it)
+    beyond = float(np.sum(np.abs(difference) ** 2 - expected)) if significance > DEPARTURE else 0.0
     departure = np.sqrt(max(0.0, beyond) / max(float(np.sum(np.abs(error[repeated]) ** 2)), 1e-300))
     return measured - error, np.sqrt(variance), np.hypot(systematic, departure * np.abs(error))
 
@@ -325,7 +334,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     inversion = _mimo_inversion_errors(channels, values, arrays)
     for key, channel in channels.items():
         rows, repeated = channel["rows"], channel["repeated"]
-        structured = _structured_zero(channel, inversion.get(key), values[rows])
+        structured = _structured_zero(channel, inversion.get(key), values[rows], noise[rows])
         if structured is not None:
             zero, zero_noise, zero_systematic = structured
             zero_noise = np.hypot(noise[rows], zero_noise)
