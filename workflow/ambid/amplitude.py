@@ -195,13 +195,13 @@ def _mimo_inversion_errors(channels, values, arrays):
     grid = arrays[axes[0]][0]
     at = np.clip(np.searchsorted(grid, frequency), 0, grid.size - 1)
     inputs = np.stack([arrays[r][1][at][:, [CHANNELS.index(f"U2_{b}") for b in axes]] for r in axes], axis=2)
-    if not (np.all(np.isfinite(plant)) and np.all(np.isfinite(inputs)) and np.all(np.einsum("nee->ne", plant) != 0)):
+    diagonal_plant = np.einsum("nee->ne", plant)
+    if not (np.all(np.isfinite(plant)) and np.all(np.isfinite(inputs)) and np.all(diagonal_plant != 0)):
         return {}
     inverse = np.linalg.inv(inputs)  # W (n, run, column)
     delta = np.stack([d["correction"] for d in diagonal], axis=1)
     delta_variance = np.stack([d["correction_variance"] for d in diagonal], axis=1)
     delta_systematic = np.stack([d["relative_error"] for d in diagonal], axis=1)
-    diagonal_plant = np.einsum("nee->ne", plant)
     jacobian = np.einsum("ner,nre->ner", plant, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
     try:
         solve = np.linalg.inv(jacobian)
@@ -214,10 +214,10 @@ def _mimo_inversion_errors(channels, values, arrays):
         return {}
     if not np.all(np.isfinite(error)):
         return {}
-    # E[o, e] = sum_r P[o, r] W[r, e] c_r to first order: its sensitivity to each diagonal's delta_d
-    sensitivity = np.einsum("nor,nre,nrd->noed", plant, inverse, solve)
-    variance = np.einsum("noed,nd->noe", np.abs(sensitivity) ** 2, delta_variance)
-    systematic = np.sqrt(np.einsum("noed,nd->noe", np.abs(sensitivity) ** 2, delta_systematic**2))
+    # E[o, e] = sum_r P[o, r] W[r, e] c_r to first order: the squared sensitivity of E[o, e] to each diagonal's delta_d
+    weight = np.abs(np.einsum("nor,nre,nrd->noed", plant, inverse, solve)) ** 2
+    variance = np.einsum("noed,nd->noe", weight, delta_variance)
+    systematic = np.sqrt(np.einsum("noed,nd->noe", weight, delta_systematic**2))
     return {keys[o][e]: (error[:, o, e], variance[:, o, e], systematic[:, o, e])
             for o in range(len(axes)) for e in range(len(axes)) if o != e}
 
