@@ -233,6 +233,22 @@ def variant_inputs(wildcards):
     return inputs
 
 
+def diagnose_inputs(wildcards):
+    """The run's FRF and the variant's machine file; and the run's own update where the variant takes another run's.
+
+    The joint refit of the variant's own parameters also descends from the run's own update (`ambid.diagnose.joint_refit`,
+    ``alternatives``): an update from a run of another band leaves the moduli that band did not determine anywhere.
+    """
+    inputs = {
+        "frf": f"results/{wildcards.machine}/frf/{wildcards.run}/frf.parquet",
+        "machine": f"results/{wildcards.machine}/model/{wildcards.variant}/machine.yaml",
+    }
+    taken = {step["update"] for step in variant_steps(wildcards) if step["update"]}
+    if taken - {wildcards.run} and config["machines"][wildcards.machine].get("update"):
+        inputs["run_update"] = f"results/{wildcards.machine}/update/{wildcards.run}/machine.yaml"
+    return inputs
+
+
 def identification_center(wildcards):
     """The calibration log whose magnetic center an identification run is centred on (its ``calibration`` run).
 

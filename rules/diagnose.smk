@@ -34,8 +34,7 @@ rule compare:
 
 rule diagnose:
     input:
-        frf="results/{machine}/frf/{run}/frf.parquet",
-        machine="results/{machine}/model/{variant}/machine.yaml",
+        unpack(diagnose_inputs),
     output:
         candidates="results/{machine}/diagnose/{run}/{variant}/candidates.tsv",
         joint="results/{machine}/diagnose/{run}/{variant}/joint.tsv",

@@ -717,11 +717,17 @@ class JointFit:
     effects: tuple
     machine: object
     evaluations: int = 0
+    began_at: tuple = ()  # (name, chi2 at the usual start, chi2 there) of the alternative start the refit descended from
 
 
 def effect_label(effect):
     extra = effect.values.get("tag") or (effect.values.get("side") if effect.name == "cross_coupling" else None)
     return f"{effect.name}[{extra}]" if extra else effect.name
+
+
+def parameter_label(effect, parameter):
+    """A refitted parameter's name in a joint table: ``effect[tag].name[index]``."""
+    return f"{effect_label(effect)}.{parameter.name}" + (f"[{parameter.index}]" if parameter.index is not None else "")
 
 
 _FIXED = {("sensor_lowpass", "order")}  # discrete: not refitted
@@ -779,7 +785,8 @@ def _forward_jacobian(fun, x, at_x, columns, lower, upper, step=1e-4):
     return jacobian
 
 
-def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True, initial=None):
+def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells=None, refit_variant=True, initial=None,
+                alternatives=()):
     """Refit the chosen effects and the variant's own effects together.
 
     Parameters
@@ -805,6 +812,13 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     initial : JointFit, optional
         An earlier refit of the same variant whose values start this one (the
         prior stays centred on the variant's configured values).
+    alternatives : sequence of (str, sequence of Effect)
+        Other starts for the variant's own parameters, by name: effects whose parameters replace the variant's
+        own of the same label (`parameter_label`), e.g. the moduli and damping of the diagnosed run's own update.
+        The refit descends from its start and from each of these, keeps the least negative log posterior and
+        records the alternative it came from in ``began_at``: the descent is local, and an update from another
+        run, whose moduli that run's band did not determine, can sit where the modes this run sees are out of its
+        reach (hs_eden_like's ms01, 1-3 kHz, from ident01's update, 1-750 Hz: chi2 per point 1.12 against 0.73).
 
     Returns
     -------
@@ -828,12 +842,17 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     span = upper - lower
     x0 = np.clip([p.to_search(v) for p, v in zip(parameters, starts)], lower + 1e-9 * span, upper - 1e-9 * span)
     origins = [origin for _, ps, origin, _ in blocks for _ in ps]
+    labels = [parameter_label(e, p) for e, ps, _, _ in blocks for p in ps]
+
+    def starting(values, base):  # search coordinates: ``base`` with the labelled values in place, inside the bounds
+        return np.clip([p.to_search(values[label]) if label in values else x for p, label, x in zip(parameters, labels, base)],
+                       lower + 1e-9 * span, upper - 1e-9 * span)
+
     begin = x0.copy()
+    began_at = ()
     if initial is not None and not initial.table.empty:
-        earlier = dict(zip(initial.table["parameter"], initial.table["value"]))
-        labels = [f"{effect_label(e)}.{p.name}" + (f"[{p.index}]" if p.index is not None else "") for e, ps, _, _ in blocks for p in ps]
-        begin = np.clip([p.to_search(earlier[label]) if label in earlier else x for p, label, x in zip(parameters, labels, x0)],
-                        lower + 1e-9 * span, upper - 1e-9 * span)
+        begin = starting(dict(zip(initial.table["parameter"], initial.table["value"])), x0)
+        began_at = initial.began_at
     prior = np.array([origin == "variant" for origin in origins])
     # the prior's residual (x - x0) / (sqrt(2) w) makes chi2 plus the sum of its squares the negative log posterior
     prior_scale = 1.0 / (np.sqrt(2.0) * settings.prior_width)
@@ -865,46 +884,71 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     started = evaluator.evaluations
     own_columns, new_columns = np.flatnonzero(prior), np.flatnonzero(~prior)
     lower_inside, upper_inside = lower + 1e-9 * span, upper - 1e-9 * span
-    x, at_x = begin, data(begin)
-    for _ in range(4):
+
+    def weighted(at_x):
         # the prior weighs against the data as deflated by the misfit left (the overdispersion, as `_covariance` deflates
         # their information), found afresh at each outer step as the misfit falls: far above the floor, the model's own
         # error, not the data, would otherwise move the variant's parameters anywhere (ms01's updated variant: moduli to
         # 25 times their value, standing in for a missing delay)
-        weight = prior_scale * np.sqrt(max(1.0, float(np.sum(at_x**2)) / points))
-        objective = float(np.sum(at_x**2) + np.sum((weight * (x - x0)[prior]) ** 2))
-        basis = np.zeros((own_columns.size, 0))
-        if own_columns.size:
-            _, singular, directions = np.linalg.svd(_forward_jacobian(data, x, at_x, own_columns, lower, upper),
-                                                    full_matrices=False)
-            # the standard deviation along each right singular direction at the floor is sqrt(0.5) / s (`_covariance`
-            # without prior or deflation: the misfit before the fit is the model's error, not the data's resolution)
-            basis = directions[np.sqrt(0.5) < settings.determined_std * singular].T
-        if basis.shape[1] + new_columns.size == 0:
-            break
+        return prior_scale * np.sqrt(max(1.0, float(np.sum(at_x**2)) / points))
 
-        def expand(z, origin=x, basis=basis):
-            out = origin.copy()
-            out[own_columns] = np.clip(origin[own_columns] + basis @ z[: basis.shape[1]], lower_inside[own_columns],
-                                       upper_inside[own_columns])
-            out[new_columns] = z[basis.shape[1]:]
-            return out
+    def posterior(x, at_x):  # the negative log posterior (up to a constant) the outer steps descend
+        return float(np.sum(at_x**2) + np.sum((weighted(at_x) * (x - x0)[prior]) ** 2))
 
-        solution = scipy.optimize.least_squares(
-            lambda z: residual(expand(z), weight), np.concatenate([np.zeros(basis.shape[1]), x[new_columns]]),
-            bounds=(np.concatenate([np.full(basis.shape[1], -np.inf), lower[new_columns]]),
-                    np.concatenate([np.full(basis.shape[1], np.inf), upper[new_columns]])),
-            x_scale=np.concatenate([np.ones(basis.shape[1]), np.minimum(span[new_columns] / 10, 1.0)]),
-            diff_step=1e-4, method="trf", max_nfev=settings.max_evaluations, xtol=1e-6, ftol=1e-6)
-        # (ftol: a step that gains less than a millionth of chi2 ends the descent, 0.008 at hs_eden_like's 7650 points
-        # at the floor, far inside chi2's unit: 1e-10 spent a fifth of the refit's evaluations on the last 0.1 units)
-        improvement = objective - 2 * solution.cost
-        # the solution's residual holds the data's part at the new point: no evaluation again
-        x, at_x, objective = expand(solution.x), solution.fun[: 2 * points], 2 * solution.cost
-        # converged when an outer step gains less than a tenth of chi2's unit (times the overdispersion): a relative
-        # criterion (1e-3 of chi2) stopped ms01's delay variant 9 units above its optimum, three standard deviations away
-        if not own_columns.size or improvement < 0.1 * max(1.0, objective / points):
-            break
+    def descend(x, at_x):
+        for _ in range(4):
+            weight, objective = weighted(at_x), posterior(x, at_x)
+            basis = np.zeros((own_columns.size, 0))
+            if own_columns.size:
+                _, singular, directions = np.linalg.svd(_forward_jacobian(data, x, at_x, own_columns, lower, upper),
+                                                        full_matrices=False)
+                # the standard deviation along each right singular direction at the floor is sqrt(0.5) / s (`_covariance`
+                # without prior or deflation: the misfit before the fit is the model's error, not the data's
+                # resolution)
+                basis = directions[np.sqrt(0.5) < settings.determined_std * singular].T
+            if basis.shape[1] + new_columns.size == 0:
+                break
+
+            def expand(z, origin=x, basis=basis):
+                out = origin.copy()
+                out[own_columns] = np.clip(origin[own_columns] + basis @ z[: basis.shape[1]], lower_inside[own_columns],
+                                           upper_inside[own_columns])
+                out[new_columns] = z[basis.shape[1]:]
+                return out
+
+            solution = scipy.optimize.least_squares(
+                lambda z: residual(expand(z), weight), np.concatenate([np.zeros(basis.shape[1]), x[new_columns]]),
+                bounds=(np.concatenate([np.full(basis.shape[1], -np.inf), lower[new_columns]]),
+                        np.concatenate([np.full(basis.shape[1], np.inf), upper[new_columns]])),
+                x_scale=np.concatenate([np.ones(basis.shape[1]), np.minimum(span[new_columns] / 10, 1.0)]),
+                diff_step=1e-4, method="trf", max_nfev=settings.max_evaluations, xtol=1e-6, ftol=1e-6)
+            # (ftol: a step that gains less than a millionth of chi2 ends the descent, 0.008 at hs_eden_like's 7650
+            # points at the floor, far inside chi2's unit: 1e-10 spent a fifth of the refit's evaluations on the last
+            # 0.1 units)
+            improvement = objective - 2 * solution.cost
+            # the solution's residual holds the data's part at the new point: no evaluation again
+            x, at_x, objective = expand(solution.x), solution.fun[: 2 * points], 2 * solution.cost
+            # converged when an outer step gains less than a tenth of chi2's unit (times the overdispersion): a
+            # relative criterion (1e-3 of chi2) stopped ms01's delay variant 9 units above its optimum, three standard
+            # deviations away
+            if not own_columns.size or improvement < 0.1 * max(1.0, objective / points):
+                break
+        return x, at_x
+
+    # the descent is local: from each alternative start too (where one differs), the least posterior kept
+    at_begin = data(begin)
+    x, at_x = descend(begin, at_begin)
+    for name, alternative in alternatives if own else ():
+        values = {parameter_label(e, p): p.start for e in alternative for p in _refittable(e)}
+        trial = starting({label: values[label] for label, origin in zip(labels, origins)
+                          if origin == "variant" and label in values}, begin)
+        if np.array_equal(trial, begin):
+            continue
+        at_trial = data(trial)
+        other, at_other = descend(trial, at_trial)
+        if posterior(other, at_other) < posterior(x, at_x):
+            x, at_x = other, at_other
+            began_at = (name, float(np.sum(at_begin**2)), float(np.sum(at_trial**2)))
     effects = build(x)
     fitted = evaluator.residual(effects)
     chi2 = float(np.vdot(fitted, fitted).real)
@@ -918,13 +962,12 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     rows = []
     k = 0
     for effect, ps, origin, _ in blocks:
-        label = effect_label(effect)
         for p in ps:
             value = p.from_search(x[k])
             std = float(std_search[k] * value) if p.log else float(std_search[k])
             relative = float(std_search[k]) if p.log else (abs(std / value) if value != 0 else np.inf)
             data_relative = float(data_std_search[k]) if p.log else (abs(data_std_search[k] / value) if value != 0 else np.inf)
-            rows.append({"parameter": f"{label}.{p.name}" + (f"[{p.index}]" if p.index is not None else ""),
+            rows.append({"parameter": parameter_label(effect, p),
                          "origin": origin, "start": p.from_search(x0[k]), "value": value, "std": std,
                          "relative_std": relative, "data_relative_std": data_relative,
                          "determined": bool(data_relative < settings.determined_std),
@@ -934,7 +977,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     correlation = pd.DataFrame(covariance / np.outer(scale, scale), index=table["parameter"], columns=table["parameter"])
     refitted = replace(machine, effects=kept + tuple(effects))
     return JointFit(table, correlation, chi2, fitted, tuple(effects[len(own):]), refitted,
-                    evaluator.evaluations - started)
+                    evaluator.evaluations - started, began_at)
 
 
 # ------------------------------------------------------------------------------------------ the diagnosis
@@ -1041,7 +1084,7 @@ CONTENDERS = 3
 CONTENDER_CHI2_RATIO = 2.0
 
 
-def _choose(machine, measured, chosen, contenders, settings, cells, joint):
+def _choose(machine, measured, chosen, contenders, settings, cells, joint, alternatives=()):
     """The round's effect and the joint refit with it: among close contenders, the one that fits best refitted jointly
     with the effects chosen before.
 
@@ -1062,7 +1105,7 @@ def _choose(machine, measured, chosen, contenders, settings, cells, joint):
                   for f in contenders]
         pick = _least_bic(refits)
         pick.contenders = tuple((f.candidate.label, j.chi2) for f, j in refits)
-    return pick, joint_refit(machine, measured, [*chosen, pick], settings, cells, initial=joint)
+    return pick, joint_refit(machine, measured, [*chosen, pick], settings, cells, initial=joint, alternatives=alternatives)
 
 
 def _contenders(ranking):
@@ -1091,7 +1134,7 @@ def _least_bic(refits):
     return next(f for (f, _), b in zip(refits, bic) if b <= least + 1e-9 * max(1.0, abs(least)))
 
 
-def _swap(machine, measured, chosen, rounds, settings, cells, joint):
+def _swap(machine, measured, chosen, rounds, settings, cells, joint, alternatives=()):
     """Each chosen effect against its round's close contenders, refitted jointly with all the other chosen effects.
 
     `_choose` tells a round's contenders apart with the effects chosen before; an
@@ -1121,11 +1164,11 @@ def _swap(machine, measured, chosen, rounds, settings, cells, joint):
             best.replaced = tuple((f.candidate.label, j.chi2) for f, j in refits if f is chosen[i] or f is best)
             chosen[i], changed = best, True
     if changed:
-        joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint)
+        joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint, alternatives=alternatives)
     return chosen, joint
 
 
-def diagnose(machine, measured, candidates=None, settings=None, **overrides):
+def diagnose(machine, measured, candidates=None, settings=None, alternatives=(), **overrides):
     """Fit every candidate effect on top of ``machine``, choose the missing ones, refit them jointly.
 
     Parameters
@@ -1138,6 +1181,9 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
         Default `candidate_space` of the machine.
     settings : DiagnoseSettings, optional
         ``overrides`` replace single settings (``sequence_length=1``).
+    alternatives : sequence of (str, sequence of Effect)
+        Other starts for the refits of the variant's own parameters (`joint_refit`): the diagnosed run's own update
+        where the variant takes another run's.
 
     Returns
     -------
@@ -1154,7 +1200,7 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     cells_before = cells.frame(residual, settings.floor_limit)
     above_before = cells_before["above_floor"].to_numpy()
     # the variant's own parameters first: a misfit they explain is not a missing effect
-    retuned = joint_refit(machine, measured, (), settings, cells) if above_before.any() else None
+    retuned = joint_refit(machine, measured, (), settings, cells, alternatives=alternatives) if above_before.any() else None
     base = retuned.machine if retuned is not None and retuned.chi2 < chi2 else machine
     evaluator = _Evaluator(Plant(base), measured, cells)
     current = evaluator.residual(()) if base is not machine else residual
@@ -1178,7 +1224,7 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
     rounds = []  # each round's close contenders, for `_swap`
     while ranking and ranking[0].missing and len(chosen) < settings.sequence_length:
         rounds.append(_contenders(ranking))
-        pick, joint = _choose(machine, measured, chosen, rounds[-1], settings, cells, joint)
+        pick, joint = _choose(machine, measured, chosen, rounds[-1], settings, cells, joint, alternatives)
         chosen.append(pick)
         masked = joint.chi2 < 0.5 * judged_on
         remaining = [c for c in candidates
@@ -1193,7 +1239,7 @@ def diagnose(machine, measured, candidates=None, settings=None, **overrides):
         latest.update({f.candidate.label: f.values for f in ranking if not f.at_bound})
         if masked:
             useful, judged_on = {f.candidate.label for f in ranking if f.evidence > 0 or f.at_bound}, joint.chi2
-    chosen, joint = _swap(machine, measured, chosen, rounds, settings, cells, joint)
+    chosen, joint = _swap(machine, measured, chosen, rounds, settings, cells, joint, alternatives)
     diagnosis.sequence = chosen
     diagnosis.joint = joint
     after = joint.residual if joint is not None else residual

@@ -11,6 +11,7 @@ from ambid.io import atomic_path, read_parquet, read_yaml, rule_log, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import residual_fingerprint, save_figure
+from ambid.variants import UPDATED_EFFECTS
 
 log = rule_log(snakemake.log[0], "diagnose")
 
@@ -22,7 +23,11 @@ machine = machine_from_config(read_yaml(snakemake.input.machine), name=machine_n
 table, info = read_parquet(snakemake.input.frf, kind="frf")
 measured = measured_channels(table)
 machine, run_findings = for_run(machine, measured, info["metadata"], "diagnose")
-diagnosis = diagnose(machine, measured, settings=settings)
+alternatives = ()
+if "run_update" in snakemake.input.keys():  # the variant takes another run's update: the refit also starts from this one's
+    update = machine_from_config(read_yaml(snakemake.input.run_update), name=machine_name, source=snakemake.input.run_update)
+    alternatives = ((f"run {run}'s own update", [e for e in update.effects if e.name in UPDATED_EFFECTS]),)
+diagnosis = diagnose(machine, measured, settings=settings, alternatives=alternatives)
 plant = Plant(machine)
 model = model_response(plant, measured)
 candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}",
