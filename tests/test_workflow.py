@@ -270,6 +270,19 @@ def test_fit_and_update_stages_on_a_user_log(workdir):
     assert ledger.loc[("updated", "all"), "excess"] < 0.01 * ledger.loc[("nominal", "all"), "excess"]
 
 
+def test_a_diagnosis_of_a_variant_updated_from_another_run_waits_for_the_runs_own_update(workdir):
+    """The joint refit also descends from the diagnosed run's own update (`ambid.diagnose.joint_refit`, alternatives)."""
+    edit_config(workdir, lambda c: c["machines"]["demo20"]["runs"].update(
+        ms01={"kind": "identification", "source": "rig", "seed": 3, "method": "multisine"}))
+    planned = {}
+    for run in ("ms01", "thesis01"):
+        result = snakemake(workdir, "--dry-run", f"results/demo20/diagnose/{run}/updated/diagnosis.md")
+        assert result.returncode == 0, result.stderr[-3000:]
+        planned[run] = re.findall(r"demo20 (\w+): rotor model update", result.stdout + result.stderr)
+    assert sorted(planned["ms01"]) == ["ms01", "thesis01"]  # the variant's update and the run's own
+    assert planned["thesis01"] == ["thesis01"]  # the variant's update is the run's own: nothing more
+
+
 def test_multisine_run_on_the_rig_to_fit_and_the_methods_table(workdir):
     """A multisine run of demo20 on its rig (short settings, same code path): log, BLA with its floors, fit, methods."""
     def change(config):
