@@ -59,8 +59,8 @@ the interpolation's error already counts, and the stated noise stays.  This is b
 
 import numpy as np
 
-from .floor import _resolved, excitation_amplitude_squared, family_of, level_pairs, resonance_ratio
-from .logs import CHANNELS
+from .floor import excitation_amplitude_squared, family_of, level_pairs, resolved, resonance_ratio
+from .logs import run_matrix
 from .machine import RADIAL_AXES
 
 __all__ = ["MEASURED_KAPPA", "AMPLITUDE_ERROR_ALIKE", "amplitude_dependence", "pair_noise_factor", "zero_amplitude",
@@ -194,7 +194,7 @@ def _mimo_inversion_errors(channels, values, arrays):
     plant = np.stack([np.stack([values[channels[key]["rows"]] for key in row], axis=-1) for row in keys], axis=1)
     grid = arrays[axes[0]][0]
     at = np.clip(np.searchsorted(grid, frequency), 0, grid.size - 1)
-    inputs = np.stack([arrays[r][1][at][:, [CHANNELS.index(f"U2_{b}") for b in axes]] for r in axes], axis=2)
+    inputs = run_matrix(arrays, "U2", axes)[at]
     diagonal_plant = np.einsum("nee->ne", plant)
     if not (np.all(np.isfinite(plant)) and np.all(np.isfinite(inputs)) and np.all(diagonal_plant != 0)):
         return {}
@@ -242,7 +242,7 @@ def _structured_zero(channel, inversion, measured, noise):
         ``(zero, noise, systematic)`` at the channel's rows; ``noise`` is the prediction's only (the measured
         point's adds to it).
     """
-    if inversion is None or not _resolved(np.abs(measured), noise):
+    if inversion is None or not resolved(np.abs(measured), noise):
         return None
     error, variance, systematic = inversion
     repeated = channel["repeated"]

@@ -63,7 +63,7 @@ from .errors import ConfigError
 from .logs import CHANNELS
 from .machine import AXIAL_AXIS, RADIAL_AXES
 
-__all__ = ["FAMILIES", "RESOLVED", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
+__all__ = ["FAMILIES", "RESOLVED", "resolved", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
            "resonance_ratio", "smooth_fit_ratio", "channel_smooth_fit_ratio", "pooled_noise", "pool_variance",
            "systematic_floor"]
@@ -388,7 +388,7 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
     """
     values, std = np.asarray(values), np.asarray(std, dtype=float)
     magnitude = np.abs(values)
-    if not (magnitude.size > 0 and np.all(magnitude > 0) and _resolved(magnitude, std)):
+    if not (magnitude.size > 0 and np.all(magnitude > 0) and resolved(magnitude, std)):
         return smooth_fit_ratio(frequency_hz, values, std, half_width)
     # relative to the channel's median point: a constant the fit absorbs, but log|G| of ~ -14 and a phase of ~ pi
     # would carry rounding of 1e-15 into a residual of 1e-4 (the same log as a thesis .m and as a CSV in um then
@@ -398,8 +398,19 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
                             half_width)
 
 
-def _resolved(magnitude, std):
-    """Whether a channel's response stands out of its noise: its median ``|G| / std`` above `RESOLVED`."""
+def resolved(magnitude, std):
+    """Whether a channel's response stands out of its noise: its median ``|G| / std`` above `RESOLVED`.
+
+    Parameters
+    ----------
+    magnitude, std : array
+        ``|G|`` at the channel's frequencies and its noise standard deviation there.
+
+    Returns
+    -------
+    bool
+        False also where the ratio is undefined throughout (zero noise and response).
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         return bool(np.median(magnitude / std) > RESOLVED)
 
@@ -562,7 +573,7 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
         if estimator == "mimo" and (estimates is None or estimates[0].size < settings.min_pairs):
             estimates = coefficients.get(("siso", output, input_axis))
         if estimates is not None and estimates[0].size >= settings.min_pairs:
-            if _resolved(magnitude[order], table.loc[order, "std"].to_numpy()):
+            if resolved(magnitude[order], table.loc[order, "std"].to_numpy()):
                 kappa = np.maximum(local_coefficient(frequency, estimates), peak_coefficient(frequency, estimates))
                 # a resonance between two pairs: its amplitude error grows with its amplification
                 kappa = kappa * np.maximum(resonance_ratio(frequency, magnitude[order], estimates[0]), 1.0)

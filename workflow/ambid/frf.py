@@ -29,7 +29,7 @@ from .amplitude import account_zero_amplitude, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, pooled_noise, systematic_floor
 from .findings import Finding
-from .logs import CHANNELS, has_coil_currents, noise_from_scatter, repeated_steps
+from .logs import CHANNELS, has_coil_currents, noise_from_scatter, repeated_steps, run_matrix
 from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
@@ -147,10 +147,8 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
         other = arrays[axis][0]
         if other.shape != frequency.shape or np.max(np.abs(other / frequency - 1)) > relative_frequency_tolerance:
             raise LogError(source, f"the runs exciting {axes[0]} and {axis} are on different frequency grids")
-    inputs = np.stack([arrays[a][1][:, [_u2(b) for b in axes]] for a in axes], axis=2)  # (n, rows=U2 axis, cols=run)
-    outputs = np.stack([arrays[a][1][:, [_v2(b) for b in axes]] for a in axes], axis=2)
-    input_noise = np.stack([arrays[a][2][:, [_u2(b) for b in axes]] for a in axes], axis=2)
-    output_noise = np.stack([arrays[a][2][:, [_v2(b) for b in axes]] for a in axes], axis=2)
+    inputs, outputs = run_matrix(arrays, "U2", axes), run_matrix(arrays, "V2", axes)  # (n, rows=channel axis, cols=run)
+    input_noise, output_noise = run_matrix(arrays, "U2", axes, part=2), run_matrix(arrays, "V2", axes, part=2)
     inverse = np.linalg.inv(inputs)
     plant = outputs @ inverse
     # Var dP_ab = sum_k |W_kb|^2 (sV_ak^2 + sum_l |P_al|^2 sU_lk^2),  W = U^-1

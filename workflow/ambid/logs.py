@@ -51,6 +51,7 @@ __all__ = [
     "AXIAL_CHANNELS",
     "COIL_CURRENT_CHANNELS",
     "axis_channels",
+    "run_matrix",
     "log_source",
     "repeated_steps",
     "COLUMNS",
@@ -137,6 +138,29 @@ def channel_unit(name):
 def axis_channels(axis):
     """The channels every step exciting ``axis`` must carry: its bearing's (`RADIAL_CHANNELS` or `AXIAL_CHANNELS`)."""
     return RADIAL_CHANNELS if axis in RADIAL_AXES else AXIAL_CHANNELS
+
+
+def run_matrix(arrays, kind, axes=RADIAL_AXES, part=1):
+    """One kind of channel of the runs exciting ``axes`` as a matrix per frequency: the MIMO estimate's ``U`` or ``V``.
+
+    Parameters
+    ----------
+    arrays : dict
+        `ambid.frf.log_arrays` of a log: per excited axis its frequencies, coefficients and noise.
+    kind : {"U2", "V2", "I"}
+        The channels ``{kind}_{axis}`` (control currents, positions, coil currents).
+    axes : sequence of str
+        The runs (columns) and the channels' axes (rows), in this order.
+    part : {1, 2}
+        Coefficients (1) or their noise standard deviations (2).
+
+    Returns
+    -------
+    array (n, len(axes), len(axes))
+        ``[f, b, r]``: channel ``{kind}_{b}`` in the run exciting ``r``.
+    """
+    columns = [CHANNELS.index(f"{kind}_{axis}") for axis in axes]
+    return np.stack([arrays[run][part][:, columns] for run in axes], axis=2)
 
 
 def log_source(path, info):
