@@ -201,15 +201,30 @@ def test_joint_refit_also_descends_from_an_alternative_start(demo):
     own_update = [effect("element_stiffness", tag="design", scale=(0.62, 0.58, 0.61, 0.6))]
     joint = joint_refit(model, measured, alternatives=[("run 2's own update", own_update)])
     assert joint.chi2 < 1.1 * points
-    name, usual, there = joint.began_at
+    name, there, other, at_other = joint.began_at
     before = misfit(measured, model_response(Plant(model), measured))[0]
-    assert name == "run 2's own update" and usual == pytest.approx(before, rel=1e-9) and there < usual
+    assert name == "run 2's own update" and other == "the model's values"
+    assert at_other == pytest.approx(before, rel=1e-9) and there < at_other
     table = joint.table.set_index("parameter")
     assert table["start"].to_numpy() == pytest.approx(3.0)  # the prior and the "before" column stay the variant's
     # an alternative that ends worse changes nothing
     worse = joint_refit(model, measured, alternatives=[("elsewhere", [effect("element_stiffness", tag="design",
                                                                               scale=(0.1, 0.1, 0.1, 0.1))])])
     assert worse.began_at == () and worse.chi2 == alone.chi2
+
+
+def test_a_diagnosis_from_an_alternative_start_says_so(demo):
+    # the same variant diagnosed with the run's own update as the alternative: its moduli retuned to the truth, and the
+    # report says where the refit came from
+    measured = synthetic_measurement(demo, [effect("element_stiffness", tag="design", scale=0.6)])
+    measured = {key: tuple(v[::5] for v in values) for key, values in measured.items()}
+    model = demo.with_effects((effect("element_stiffness", tag="design", scale=(3.0, 3.0, 3.0, 3.0)),))
+    own_update = [effect("element_stiffness", tag="design", scale=(0.62, 0.58, 0.61, 0.6))]
+    diagnosis = diagnose(model, measured, alternatives=[("run 2's own update", own_update)])
+    assert diagnosis.verdict == "retune" and diagnosis.summary()["chi2_per_point_after"] < 1.1
+    assert len(diagnosis.retune) == 4 and np.allclose(diagnosis.retune["value"], 0.6, rtol=0.05)
+    _, text = diagnosis_report(diagnosis, Plant(model), measured, None, "demo20, run 2, model far")
+    assert "also refitted from run 2's own update" in text and "at the model's values" in text
 
 
 def test_config_lines_round_trip_exactly(demo):

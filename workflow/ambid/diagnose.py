@@ -717,7 +717,8 @@ class JointFit:
     effects: tuple
     machine: object
     evaluations: int = 0
-    began_at: tuple = ()  # (name, chi2 at the usual start, chi2 there) of the alternative start the refit descended from
+    # the alternative start the kept descent came from: (its name, chi2 there, the other start's name, chi2 there)
+    began_at: tuple = ()
 
 
 def effect_label(effect):
@@ -951,7 +952,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
         other, at_other = descend(trial, at_trial)
         if posterior(other, at_other) < posterior(x, at_x):
             x, at_x = other, at_other
-            began_at = (name, float(np.sum(at_begin**2)), float(np.sum(at_trial**2)))
+            usual = "an earlier refit's values" if initial is not None and not initial.table.empty else "the model's values"
+            began_at = (name, float(np.sum(at_trial**2)), usual, float(np.sum(at_begin**2)))
     effects = build(x)
     fitted = evaluator.residual(effects)
     chi2 = float(np.vdot(fitted, fitted).real)

@@ -345,12 +345,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
         lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
                   ""]
         if joint.began_at:
-            name, usual, there = joint.began_at
+            name, there, other, at_other = joint.began_at
             lines += [f"The model's own parameters were also refitted from {name}; that descent ended lower, so the values "
-                      f"above are its (where the two descents began: chi2 per point {there / diagnosis.points:.4g} from "
-                      f"{name}, {usual / diagnosis.points:.4g} from the model's own). Those the data do not determine "
-                      "keep that start's values, not the model's: to reproduce this fit, set them all, not only those "
-                      "that moved.", ""]
+                      f"above are its (where the two descents began: chi2 per point {there / diagnosis.points:.4g} at "
+                      f"{name}, {at_other / diagnosis.points:.4g} at {other}). Those the data do not determine keep that "
+                      "start's values, not the model's: to reproduce this fit, set them all, not only those that moved.", ""]
     retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
