@@ -278,6 +278,13 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   f"lies within the floor{' of the model retuned below' if diagnosis.verdict == 'retune' else ''}. Whether "
                   "it is there takes more data: repeated steps, a denser grid or a multisine run where it acts."
                   + (" " + _describing_function("the lead") if repeated_steps == 0 else ""), ""]
+    if diagnosis.dropped:
+        names = ", ".join(f"`{label}` (BIC evidence {evidence:.3g}: {why})" for label, evidence, why in diagnosis.dropped)
+        lines += [f"**Dropped after the selection**: {names}. Chosen in {'its round' if len(diagnosis.dropped) == 1 else 'their rounds'}, "
+                  f"{'it is' if len(diagnosis.dropped) == 1 else 'they are'} no longer missing once the effects chosen later "
+                  "are in the model: refitted without it, the others explain the measurement as well. A missing effect "
+                  f"needs evidence above {INDISTINGUISHABLE_BIC:g}, a material share of the misfit and no parameter at a "
+                  "bound of its range.", ""]
     if diagnosis.sequence:
         new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
         parts = []
@@ -288,10 +295,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             parts.append(f"`{fitted.candidate.label}` ({values})")
         lines += [("**Missing: " if len(parts) == 1 else "**Missing, together: ") + "; ".join(parts) + "**.", ""]
         first = diagnosis.sequence[0]
-        lines += [f"Chosen one after the other, then refitted jointly with the model's own parameters. The first removes "
-                  f"{_removes_text(first)}; it helps "
-                  f"most on {helps[diagnosis.ranked.index(first)]['channels']} and in the "
-                  f"{helps[diagnosis.ranked.index(first)]['band']} band.", ""]
+        index = next((i for i, f in enumerate(diagnosis.ranked) if f is first), None)  # (a later round's when pruned)
+        lines += ["Chosen one after the other, then refitted jointly with the model's own parameters. The first "
+                  + (f"removes {_removes_text(first)}; it helps most on {helps[index]['channels']} and in the "
+                     f"{helps[index]['band']} band." if index is not None else
+                     f"kept, chosen in a later round, removed {_removes_text(first)} there."), ""]
         if first.indistinguishable:
             lines += [f"The data in the measured band cannot tell `{first.candidate.label}` from: "
                       f"{', '.join(first.indistinguishable)} (BIC evidence within {INDISTINGUISHABLE_BIC:g}); either explains "
