@@ -331,7 +331,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
         lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations):", ""]
         lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" + (_AT_BOUND if r.at_bound else "")
                   for r in diagnosis.retune.itertuples()]
-        lines += ["", "Set them where the variant takes them (its machine file, variant or update)." , ""]
+        lines += ["", "Set them where the variant takes them (its machine file, variant or update)."
+                  + (f" The refit kept its descent from {joint.began_at[0]}, so the values the data do not determine "
+                     "are that start's (table below): set them all, or let the variant take that update (its "
+                     "`update:`) and then the moved values above." if joint is not None and joint.began_at else ""), ""]
     unexplained = diagnosis.unexplained
     if not unexplained.empty:
         lines += [f"**Unexplained misfit**{' remains' if diagnosis.sequence else ''}: no effect of the library brings "
