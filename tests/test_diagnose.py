@@ -226,6 +226,7 @@ def test_a_diagnosis_from_an_alternative_start_says_so(demo):
     _, text = diagnosis_report(diagnosis, Plant(model), measured, None, "demo20, run 2, model far")
     assert "also refitted from run 2's own update" in text and "at the model's values" in text
     assert "The refit kept its descent from run 2's own update" in text  # beside the moved values: set them all
+    assert "alternative_start" in {f.code for f in diagnosis_findings(diagnosis)}
 
 
 def test_an_effect_the_later_choices_explain_is_dropped(demo):

@@ -164,6 +164,15 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
     for fitted in diagnosis.sequence:
         out.append(Finding(stage, "warning", "missing_effect", fitted.candidate.label,
                            f"{fitted.candidate.label} is missing: it removes " + _removes_text(fitted), fitted.evidence))
+    for label, evidence, why in diagnosis.dropped:
+        out.append(Finding(stage, "note", "dropped_effect", label,
+                           f"{label} was chosen in its round but is no longer missing once the effects chosen later are "
+                           f"in the model ({why}): not an effect to add", evidence))
+    if diagnosis.joint is not None and diagnosis.joint.began_at:
+        name, there, other, at_other = diagnosis.joint.began_at
+        out.append(Finding(stage, "note", "alternative_start", name,
+                           f"the joint refit kept its descent from {name}, not from {other}: the model's parameters the "
+                           "data do not determine are that start's", there / diagnosis.points))  # (chi2 per point there)
     if joint is not None and not joint.empty:
         for row in joint.itertuples():
             if row.at_bound:
