@@ -942,7 +942,9 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     # point, and the refits with the delay from there ended at 1.12, from the alternative again at 0.73)
     at_begin = data(begin)
     x, at_x = descend(begin, at_begin)
-    for name, alternative in alternatives if own else ():
+    cells = evaluator.cells
+    at_floor = not cells.above(cells.chi2(at_x[:points] + 1j * at_x[points:]), settings.floor_limit).any()
+    for name, alternative in alternatives if own and not at_floor else ():  # (at the floor no start does better)
         values = {parameter_label(e, p): p.start for e in alternative for p in _refittable(e)}
         trial = starting({label: values[label] for label, origin in zip(labels, origins)
                           if origin == "variant" and label in values}, begin)
