@@ -816,8 +816,8 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     alternatives : sequence of (str, sequence of Effect)
         Other starts for the variant's own parameters, by name: effects whose parameters replace the variant's
         own of the same label (`parameter_label`), e.g. the moduli and damping of the diagnosed run's own update.
-        The refit descends from its start and from each of these, keeps the least negative log posterior and
-        records the alternative it came from in ``began_at``: the descent is local, and an update from another run,
+        The refit descends from its start and, unless that descent reaches the floor, from each of these; it keeps
+        the least negative log posterior and records the alternative it came from in ``began_at``: the descent is local, and an update from another run,
         whose moduli that run's band did not determine, can sit where the modes this run sees are out of its reach
         (hs_eden_like's ms01, 1-3 kHz, from ident01's update, 1-750 Hz: chi2 per point 134 against 0.73 after the
         diagnosis' refits, and a foundation mode named at 1.6 kHz).
