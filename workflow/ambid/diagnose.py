@@ -816,8 +816,9 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     alternatives : sequence of (str, sequence of Effect)
         Other starts for the variant's own parameters, by name: effects whose parameters replace the variant's
         own of the same label (`parameter_label`), e.g. the moduli and damping of the diagnosed run's own update.
-        The refit descends from its start and, unless that descent reaches the floor, from each of these; it keeps
-        the least negative log posterior and records the alternative it came from in ``began_at``: the descent is local, and an update from another run,
+        The refit descends from its start and from each of these, in the order of their negative log posterior and
+        none after a descent that reaches the floor; it keeps the least and records the alternative it came from in
+        ``began_at``: the descent is local, and an update from another run,
         whose moduli that run's band did not determine, can sit where the modes this run sees are out of its reach
         (hs_eden_like's ms01, 1-3 kHz, from ident01's update, 1-750 Hz: chi2 per point 134 against 0.73 after the
         diagnosis' refits, and a foundation mode named at 1.6 kHz).
@@ -939,23 +940,28 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
 
     # the descent is local: from each alternative start too (where one differs), the least posterior kept (again in
     # each refit: on ms01's updated variant the retune without the delay kept the alternative's descent at 134 per
-    # point, and the refits with the delay from there ended at 1.12, from the alternative again at 0.73)
-    at_begin = data(begin)
-    x, at_x = descend(begin, at_begin)
-    cells = evaluator.cells
-    at_floor = not cells.above(cells.chi2(at_x[:points] + 1j * at_x[points:]), settings.floor_limit).any()
-    for name, alternative in alternatives if own and not at_floor else ():  # (at the floor no start does better)
+    # point, and the refits with the delay from there ended at 1.12, from the alternative again at 0.73); the starts
+    # in the order of their posterior, and none after a descent that reaches the floor (no start does better there)
+    usual = "an earlier refit's values" if initial is not None and not initial.table.empty else "the model's values"
+    starts = [(usual, begin, data(begin))]
+    for name, alternative in alternatives if own else ():
         values = {parameter_label(e, p): p.start for e in alternative for p in _refittable(e)}
         trial = starting({label: values[label] for label, origin in zip(labels, origins)
                           if origin == "variant" and label in values}, begin)
-        if np.array_equal(trial, begin):
-            continue
-        at_trial = data(trial)
-        other, at_other = descend(trial, at_trial)
-        if posterior(other, at_other) < posterior(x, at_x):
-            x, at_x = other, at_other
-            usual = "an earlier refit's values" if initial is not None and not initial.table.empty else "the model's values"
-            began_at = (name, float(np.sum(at_trial**2)), usual, float(np.sum(at_begin**2)))
+        if not np.array_equal(trial, begin):
+            starts.append((name, trial, data(trial)))
+    chi2_at_start = {name: float(np.sum(at_start**2)) for name, _, at_start in starts}
+    starts.sort(key=lambda start: posterior(start[1], start[2]))
+    descent, cells = None, evaluator.cells
+    for name, start, at_start in starts:
+        end, at_end = descend(start, at_start)
+        if descent is None or posterior(end, at_end) < posterior(descent[1], descent[2]):
+            descent = (name, end, at_end)
+        if not cells.above(cells.chi2(at_end[:points] + 1j * at_end[points:]), settings.floor_limit).any():
+            break
+    name, x, _ = descent
+    if name != usual:
+        began_at = (name, chi2_at_start[name], usual, chi2_at_start[usual])
     effects = build(x)
     fitted = evaluator.residual(effects)
     chi2 = float(np.vdot(fitted, fitted).real)
