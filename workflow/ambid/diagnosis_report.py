@@ -289,11 +289,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   + (" " + _describing_function("the lead") if repeated_steps == 0 else ""), ""]
     if diagnosis.dropped:
         names = ", ".join(f"`{label}` (BIC evidence {evidence:.3g}: {why})" for label, evidence, why in diagnosis.dropped)
-        lines += [f"**Dropped after the selection**: {names}. Chosen in {'its round' if len(diagnosis.dropped) == 1 else 'their rounds'}, "
-                  f"{'it is' if len(diagnosis.dropped) == 1 else 'they are'} no longer missing once the effects chosen later "
-                  "are in the model: refitted without it, the others explain the measurement as well. A missing effect "
-                  f"needs evidence above {INDISTINGUISHABLE_BIC:g}, a material share of the misfit and no parameter at a "
-                  "bound of its range.", ""]
+        lines += [f"**Dropped after the selection**: {names}. Each was chosen in its round, but weighed against the "
+                  "other chosen effects refitted without it, it is no longer missing: a missing effect needs BIC "
+                  f"evidence above {INDISTINGUISHABLE_BIC:g}, a material share of the misfit and no parameter at a bound "
+                  "of its range.", ""]
     if diagnosis.sequence:
         new = joint.table[joint.table["origin"] == "new"] if joint is not None else None
         parts = []
@@ -366,10 +365,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   ""]
         if joint.began_at:
             name, there, other, at_other = joint.began_at
-            lines += [f"The model's own parameters were also refitted from {name}; that descent ended lower, so the values "
-                      f"above are its (where the two descents began: chi2 per point {there / diagnosis.points:.4g} at "
-                      f"{name}, {at_other / diagnosis.points:.4g} at {other}). Those the data do not determine keep that "
-                      "start's values, not the model's: to reproduce this fit, set them all, not only those that moved.", ""]
+            lines += [f"The model's own parameters were refitted from {name} as well as from {other} (chi2 per point "
+                      f"{there / diagnosis.points:.4g} and {at_other / diagnosis.points:.4g} there); the values above are "
+                      f"the descent from {name}'s, which ended lowest or reached the floor first. Those the data do not "
+                      "determine keep that start's values, not the model's: to reproduce this fit, set them all, not only "
+                      "those that moved.", ""]
     retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
