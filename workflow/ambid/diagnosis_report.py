@@ -366,8 +366,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
         if joint.began_at:
             name, there, other, at_other = joint.began_at
             lines += [f"The model's own parameters were refitted from {name} as well as from {other} (chi2 per point "
-                      f"{there / diagnosis.points:.4g} and {at_other / diagnosis.points:.4g} there); the values above are "
-                      f"the descent from {name}'s, which ended lowest or reached the floor first. Those the data do not "
+                      f"{there / diagnosis.points:.4g} and {at_other / diagnosis.points:.4g} there); the values above come "
+                      f"from the descent that began at {name}, which ended lowest or reached the floor first. Those the data do not "
                       "determine keep that start's values, not the model's: to reproduce this fit, set them all, not only "
                       "those that moved.", ""]
     retuned = diagnosis.base_chi2 < diagnosis.chi2
