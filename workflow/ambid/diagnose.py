@@ -818,10 +818,10 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
         own of the same label (`parameter_label`), e.g. the moduli and damping of the diagnosed run's own update.
         The refit descends from its start and from each of these, in the order of their negative log posterior and
         none after a descent that reaches the floor; it keeps the least and records the alternative it came from in
-        ``began_at``: the descent is local, and an update from another run,
-        whose moduli that run's band did not determine, can sit where the modes this run sees are out of its reach
-        (hs_eden_like's ms01, 1-3 kHz, from ident01's update, 1-750 Hz: chi2 per point 134 against 0.73 after the
-        diagnosis' refits, and a foundation mode named at 1.6 kHz).
+        ``began_at``.  The descent is local, and an update from another run, whose moduli that run's band did not
+        determine, can sit where the modes this run sees are out of its reach (hs_eden_like's ms01, 1-3 kHz, from
+        ident01's update, 1-750 Hz: chi2 per point 134 against 0.73 after the diagnosis' refits, and a foundation
+        mode named at 1.6 kHz).
 
     Returns
     -------
