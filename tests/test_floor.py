@@ -1,6 +1,7 @@
 """The FRF's systematic floor: bands from the grid, two-level amplitude coefficients, scatter, fallback; the pooled
 noise."""
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -671,3 +672,22 @@ def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():
     # a quarter of the error beyond a pair noise of a fifth of it (2.5 standard deviations over 20 pairs): 15 %
     _, _, systematic = _structured_zero(channel(1.25 * error[repeated]), inversion, measured, point_noise)
     assert np.allclose(systematic / np.abs(error), np.sqrt(0.25**2 - 0.2**2), rtol=1e-4)
+
+
+def test_the_zero_amplitude_account_leaves_out_a_row_that_reads_zero():
+    # a row whose FRF reads exactly 0 has no relative systematic error: it is left out of the band's median and p90
+    # (it overflowed to inf and could make the p90 inf)
+    from ambid.amplitude import account_zero_amplitude
+    from ambid.floor import family_of
+
+    table = pd.DataFrame({"estimator": "siso", "output": "DX", "input": "DX", "frequency_hz": [10.0, 20.0, 30.0, 40.0],
+                          "re": [1e-6, 2e-6, 0.0, 1e-6], "im": 0.0, "systematic_std": [1e-8, 2e-8, 1e-8, 3e-8]})
+    family = family_of("siso", "DX", "DX")
+    floors = pd.DataFrame({"family": [family], "band_lo_hz": [0.0], "band_hi_hz": [100.0], "method": ["pairs"],
+                           "relative_median": [np.nan], "relative_p90": [np.nan]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        account = account_zero_amplitude(floors, table, np.array([True, True, True, True]))
+    row = account.iloc[0]
+    assert row["zero_amplitude_points"] == 4 and row["method"] == "pairs + zero_amplitude"
+    assert row["relative_median"] == pytest.approx(0.01) and row["relative_p90"] == pytest.approx(np.quantile([0.01, 0.01, 0.03], 0.9))

@@ -372,7 +372,9 @@ def account_zero_amplitude(floors, table, extrapolated):
         return floors
     families = np.array([family_of(e, o, i) for e, o, i in zip(table["estimator"], table["output"], table["input"])])
     frequency = table["frequency_hz"].to_numpy()
-    relative = table["systematic_std"].to_numpy() / np.maximum(np.hypot(table["re"], table["im"]).to_numpy(), 1e-300)
+    magnitude = np.hypot(table["re"], table["im"]).to_numpy()
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # (a row reading 0 has no relative error)
+        relative = np.where(magnitude > 0, table["systematic_std"].to_numpy() / magnitude, np.nan)
     for k, row in floors.iterrows():
         inside = (families == row["family"]) & (frequency >= row["band_lo_hz"]) & (frequency < row["band_hi_hz"])
         count = int(np.count_nonzero(inside & extrapolated))
@@ -380,6 +382,8 @@ def account_zero_amplitude(floors, table, extrapolated):
             continue
         floors.loc[k, "zero_amplitude_points"] = count
         floors.loc[k, "method"] = row["method"] + " + zero_amplitude"
-        floors.loc[k, "relative_median"] = float(np.median(relative[inside]))
-        floors.loc[k, "relative_p90"] = float(np.quantile(relative[inside], 0.9))
+        values = relative[inside]
+        values = values[np.isfinite(values)]
+        floors.loc[k, "relative_median"] = float(np.median(values)) if values.size else np.nan
+        floors.loc[k, "relative_p90"] = float(np.quantile(values, 0.9)) if values.size else np.nan
     return floors
