@@ -952,12 +952,12 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             starts.append((name, trial, data(trial)))
     chi2_at_start = {name: float(np.sum(at_start**2)) for name, _, at_start in starts}
     starts.sort(key=lambda start: posterior(start[1], start[2]))
-    descent, cells = None, evaluator.cells
+    descent, floor = None, evaluator.cells
     for name, start, at_start in starts:
         end, at_end = descend(start, at_start)
         if descent is None or posterior(end, at_end) < posterior(descent[1], descent[2]):
             descent = (name, end, at_end)
-        if not cells.above(cells.chi2(at_end[:points] + 1j * at_end[points:]), settings.floor_limit).any():
+        if not floor.above(floor.chi2(at_end[:points] + 1j * at_end[points:]), settings.floor_limit).any():
             break
     name, x, _ = descent
     if name != usual:
