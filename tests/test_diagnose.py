@@ -230,7 +230,7 @@ def test_a_diagnosis_from_an_alternative_start_says_so(demo):
     assert diagnosis.verdict == "retune" and diagnosis.summary()["chi2_per_point_after"] < 1.1
     assert len(diagnosis.retune) == 4 and np.allclose(diagnosis.retune["value"], 0.6, rtol=0.05)
     _, text = diagnosis_report(diagnosis, Plant(model), measured, None, "demo20, run 2, model far")
-    assert "refitted from run 2's own update as well as from the model's values" in text
+    assert "had two starts, run 2's own update and the model's values" in text
     assert "The refit kept its descent from run 2's own update" in text  # beside the moved values: set them all
     assert "alternative_start" in {f.code for f in diagnosis_findings(diagnosis)}
 

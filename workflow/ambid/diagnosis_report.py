@@ -365,11 +365,11 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   ""]
         if joint.began_at:
             name, there, other, at_other = joint.began_at
-            lines += [f"The model's own parameters were refitted from {name} as well as from {other} (chi2 per point "
-                      f"{there / diagnosis.points:.4g} and {at_other / diagnosis.points:.4g} there); the values above come "
-                      f"from the descent that began at {name}, which ended lowest or reached the floor first. Those the data do not "
-                      "determine keep that start's values, not the model's: to reproduce this fit, set them all, not only "
-                      "those that moved.", ""]
+            lines += [f"The refit of the model's own parameters had two starts, {name} and {other} (chi2 per point "
+                      f"{there / diagnosis.points:.4g} and {at_other / diagnosis.points:.4g} there). The values above come "
+                      f"from the descent that began at {name}: the lower end, or the first to reach the floor (after which "
+                      "no other start is tried). Those the data do not determine keep that start's values, not the "
+                      "model's: to reproduce this fit, set them all, not only those that moved.", ""]
     retuned = diagnosis.base_chi2 < diagnosis.chi2
     lines += ["## Ranking against the model " + ("with its own parameters refitted first (chi2 per point "
                                                  f"{diagnosis.base_chi2 / diagnosis.points:.4g})" if retuned else "as it is"), "",
