@@ -147,7 +147,7 @@ def run_matrix(arrays, kind, axes=RADIAL_AXES, part=1):
     ----------
     arrays : dict
         `ambid.frf.log_arrays` of a log: per excited axis its frequencies, coefficients and noise.
-    kind : {"U2", "V2", "I"}
+    kind : {"U2", "V2", "I_upper", "I_lower"}
         The channels ``{kind}_{axis}`` (control currents, positions, coil currents).
     axes : sequence of str
         The runs (columns) and the channels' axes (rows), in this order.
