@@ -89,6 +89,29 @@ def test_damping_and_group_moduli_recovered(hs_machine):
     np.testing.assert_allclose(result.values, [0.55, 0.75, 0.008], rtol=1e-3)
 
 
+@pytest.mark.parametrize("band_hz, modes, per_tag_std", [(750.0, 1, 0.06), (3000.0, 3, 0.002)])
+def test_a_stack_has_one_modulus_the_resonances_can_determine_not_one_per_element(hs_machine, band_hz, modes,
+                                                                                   per_tag_std):
+    """hs_eden_like's configured design variables (README "Design variables"): even the exact features of the truth
+    (softer AMB stacks) determine none of the thesis' 14 per-element moduli, at one mode (``ident01``'s band) or three
+    (``ms01``'s); one modulus per stack, all three."""
+    truth = with_effects(hs_machine,
+                         {"name": "element_stiffness", "parameters": {"tag": "de_amb", "scale": 0.55}},
+                         {"name": "element_stiffness", "parameters": {"tag": "nde_amb", "scale": 0.75}},
+                         {"name": "modal_damping", "parameters": {"damping_ratio": 0.008}})
+    features = features_of(truth, band_hz)
+    tags = ["de_amb", "nde_amb", "motor"]
+    per_element = problem_for(hs_machine, features, tags=tags, per_element=True, modes=modes, damping="common")
+    rows, _, summary = identifiability(per_element, np.array([0.55] * 4 + [0.75] * 4 + [1.0] * 6 + [0.008]),
+                                       valley=False)
+    assert len(per_element.variables) == 15 and summary["rank"] < 10
+    assert not any(r["determined"] for r in rows[:14])
+    per_tag = problem_for(hs_machine, features, tags=tags, per_element=False, modes=modes, damping="common")
+    rows, _, summary = identifiability(per_tag, np.array([0.55, 0.75, 1.0, 0.008]), valley=False)
+    assert summary["rank"] == 4 and all(r["determined"] for r in rows)
+    assert max(r["std"] for r in rows[:3]) < per_tag_std
+
+
 def test_modes_are_matched_by_proximity_not_index(demo_machine, thesis_reference):
     """Only the second mode measured: it is matched to the model's second mode, not its first."""
     features = features_of(thesis_reference, 3500.0)

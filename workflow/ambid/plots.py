@@ -376,7 +376,9 @@ def youngs_modulus(variables, title):
     axis.grid(True, axis="y", alpha=0.3)
     handles = [Patch(color="0.7", label="original"), Patch(color="C0", label="updated (+-2 sigma)"),
                Patch(facecolor="white", edgecolor="C0", hatch="//", label="updated, not determined by the data")]
-    axis.legend(handles=handles, fontsize=7)
+    # the legend in a row above the bars (headroom), not over the first of them
+    axis.set_ylim(0.0, 1.25 * max(np.nanmax(start), np.nanmax(updated)))
+    axis.legend(handles=handles, fontsize=7, loc="upper center", ncol=3)
     axis.set_title(title)
     figure.tight_layout()
     return figure
