@@ -32,6 +32,7 @@ rule update:
         machine_update=lambda wildcards: config["machines"][wildcards.machine].get("update", {}),
         run_modes=lambda wildcards: RUNS[(wildcards.machine, wildcards.run)].get("update_modes"),
         settings=config["update"],
+        fit_settings=config["fit"],  # the estimator whose bias the update takes off (ambid.update.estimator_bias)
         dpi=config["figures"]["dpi"],
         library=LIBRARY_DIGEST,
     message:

@@ -38,8 +38,8 @@ from .machine import RADIAL_AXES
 from .modal_features import LIGHT_DAMPING
 from .plant import RIGID_MODES, damping_ratio
 
-__all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "select_modes", "known_response", "rigid_pole_hz",
-           "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes", "real_zero_hz",
+__all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "fit_plant_channel", "select_modes", "known_response",
+           "rigid_pole_hz", "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes", "real_zero_hz",
            "fit_verdict", "dipole_hz", "negative_delay", "MAX_CHI2", "OVERDAMPED", "DIPOLE", "NEGATIVE_DELAY_SIGMAS"]
 
 
@@ -311,6 +311,26 @@ def known_response(plant, output_axis, input_axis, frequency_hz):
         for effect in effects:
             known = known * effect.response(frequency_hz, axes)[:, axes.index(axis), axes.index(axis)]
     return known
+
+
+def fit_plant_channel(plant, frequency_hz, response, std, output_axis, input_axis, settings, known=None):
+    """The fit stage's estimator on one radial channel: `fit_channel` with what the model ``plant`` knows.
+
+    The hold and the model's own effects as the known factor (`known_response`), the model's
+    rigid poles and real zeros as starting values, and the options of the config's ``fit:``
+    section (``modes``, ``orders``, ``lowpass``, ``delay``).  The fit stage applies it to the
+    measured FRF, `ambid.update.estimator_bias` to a model's own.
+
+    Returns
+    -------
+    ChannelFit
+    """
+    frequency_hz = np.asarray(frequency_hz, dtype=float)
+    if known is None:
+        known = known_response(plant, output_axis, input_axis, frequency_hz)
+    return fit_channel(frequency_hz, response, std=std, known=known, modes=settings["modes"], orders=settings["orders"],
+                       lowpass=settings["lowpass"], delay=settings["delay"], rigid_hint_hz=rigid_pole_hz(plant),
+                       zero_hint_hz=real_zero_hz(plant, output_axis, input_axis, frequency_hz.max()))
 
 
 def real_zero_hz(plant, output_axis, input_axis, band_hz):

@@ -3,8 +3,8 @@
 import numpy as np
 import pandas as pd
 
-from ambid.channel_fit import (MAX_CHI2, FitError, feature_rows, fit_channel, fit_verdict, known_response, model_rows,
-                               real_zero_hz, rigid_pole_hz, select_channels)
+from ambid.channel_fit import (MAX_CHI2, FitError, feature_rows, fit_plant_channel, fit_verdict, known_response,
+                               model_rows, select_channels)
 from ambid.findings import Finding, write_findings
 from ambid.fit import classify_poles, levy_thesis
 from ambid.frf import channel
@@ -20,7 +20,6 @@ machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wi
 plant = Plant(machine)
 table, _ = read_parquet(snakemake.input.frf, kind="frf")
 estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
-hint = rigid_pole_hz(plant)
 numerator_order, denominator_order = settings["thesis_orders"]
 features, models, panels, fitted, diagrams, selected, findings = [], [], [], [], {}, {}, []
 for output, input_axis in select_channels(settings["channels"]):
@@ -31,9 +30,7 @@ for output, input_axis in select_channels(settings["channels"]):
     label = f"{output}/{input_axis}"
     known = known_response(plant, output, input_axis, frequency)
     try:
-        result = fit_channel(frequency, measured, std=std, known=known, modes=settings["modes"], orders=settings["orders"],
-                             lowpass=settings["lowpass"], delay=settings["delay"], rigid_hint_hz=hint,
-                             zero_hint_hz=real_zero_hz(plant, output, input_axis, frequency.max()))
+        result = fit_plant_channel(plant, frequency, measured, std, output, input_axis, settings, known=known)
     except FitError as error:  # this channel has no model: said where the fit is quoted, the others go on
         log.warning("%s: %s", label, error)
         findings.append(Finding("fit", "failure", "fit_failed", label, f"no fit: {error}"))
