@@ -543,7 +543,10 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                     f"{row['updated']:.1f} Hz ({row['error_pct']:.2f} % off){caveat}"))
             sections.append(Section(f"Model update {run} (thesis ch. 5.2-5.3, 6.3)", [
                 table(f"{base}/comparison.tsv", "Measured features against the original and the updated model "
-                                                "(thesis Tables 6.4 and 6.5; reference rotor: Tables 5.2 and 5.3)."),
+                                                "(thesis Tables 6.4 and 6.5; reference rotor: Tables 5.2 and 5.3). "
+                                                "`measured` is what the update matched: the fit's value less "
+                                                "`estimator_bias`, what the fit's estimator gets wrong on the updated "
+                                                "model's own FRF (README \"Rotor model update\")."),
                 Text(f"**{undetermined} of {len(variables)} update variables are not determined by the data**: their "
                      "updated values are not measurements (hatched in the figure below)." if undetermined else
                      f"All {len(variables)} update variables are determined by the data."),
