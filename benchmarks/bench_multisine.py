@@ -24,12 +24,13 @@ continuous plant's poles), which only a benchmark may read:
    floor.  (Both FRFs' standard deviations are the workflow's, so part 2
    compares the variances a user gets.)
 4. **demo20 first-resonance damping**: p90 of |relative error| of the fitted
-   damping ratio (default estimator `ambid.channel_fit.fit_channel`, each
+   damping ratio (the fit stage's estimator `ambid.channel_fit.fit_plant_channel`, each
    same-plane channel) over seeds, both methods at the rig's noise level.
    Target < 1.5 % (issue: stepped sine 3.2 %).
 5. **Update determinacy with the wider band**: the multisine FRF fitted and
-   the rotor model updated (thesis ch. 5.2, 3 modes, per-element moduli):
-   variables determined (resolution >= 0.9), resolution of each, moduli
+   the rotor model updated (thesis ch. 5.2, 3 modes, per-element moduli; from
+   rig data, as the workflow does it, with the fit estimator's bias taken off,
+   `ambid.update.debiased_update`): variables determined (resolution >= 0.9), resolution of each, moduli
    against the rig's truth; and the same update from the truth's exact
    features (the limit of what these features can determine).  Targets:
    demo20's 4 moduli and >= 10 of hs_eden_like's 14 determined, moduli within
@@ -57,7 +58,7 @@ import pandas as pd
 import yaml
 
 from ambid.bla import excitation_covariance, multisine_frf
-from ambid.channel_fit import FitError, feature_rows, fit_channel, known_response, rigid_pole_hz, select_channels
+from ambid.channel_fit import FitError, feature_rows, fit_plant_channel, select_channels
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.floor import FloorSettings
 from ambid.frf import channel, frf_from_log
@@ -69,8 +70,8 @@ from ambid.multisine import identify_multisine, multisine_settings_from_config
 from ambid.plausibility import FRF_SETTINGS
 from ambid.plant import Plant, damping_ratio
 from ambid.rig import RigModel, rig_from_config
-from ambid.update import (UpdateSettings, identifiability, reference_features, update_channels, update_model,
-                          update_problem)
+from ambid.update import (UpdateSettings, bias_at_values, debiased_update, identifiability, reference_features,
+                          update_channels, update_model, update_problem)
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = yaml.safe_load((ROOT / "config/config.yaml").read_text())
@@ -183,12 +184,11 @@ def chi2(table, rig_model, floor=None):
 
 def fitted(table, plant, f1):
     """Features of every same-plane channel (the fit stage's default estimator) and the first-resonance damping ratios."""
-    hint, rows, damping = rigid_pole_hz(plant), [], []
+    rows, damping = [], []
     for output, input_axis in select_channels(FIT["channels"]):
         f, g, std = channel(table, "mimo", output, input_axis)
         try:
-            fit = fit_channel(f, g, std=std, known=known_response(plant, output, input_axis, f), rigid_hint_hz=hint,
-                              **FIT_OPTIONS)
+            fit = fit_plant_channel(plant, f, g, std, output, input_axis, FIT)  # the fit stage's estimator
         except FitError:
             continue
         rows += feature_rows(fit, output, input_axis, "output_error")
@@ -198,13 +198,16 @@ def fitted(table, plant, f1):
     return pd.DataFrame(rows), np.array(damping)
 
 
-def update(machine, model, features, modes=3, truth_rig=None, per_element=True, truth=None):
+def update(machine, model, features, modes=3, truth_rig=None, per_element=True, truth=None, table=None):
+    """The workflow's update (``table``: the FRF the features were fitted from, for the estimator's bias)."""
     settings = UpdateSettings.from_config(WORKFLOW["update"], {**WORKFLOW["machines"][machine]["update"], "modes": modes,
                                                                "per_element": per_element})
     if truth_rig is not None:  # the truth's exact features: what these features can determine at best
         features = reference_features(Plant(truth_rig.rig.machine), update_channels(settings.channels), 3000.0)
     problem = update_problem(machine_from_config(model, name=machine), features, settings)
     result = update_model(problem, settings)
+    if table is not None and settings.estimator_bias:
+        problem, result = debiased_update(problem, result, settings, bias_at_values(model, problem, table, FIT, machine))
     rows, _, summary = identifiability(problem, result.values)
     if truth is not None:
         return problem, result, rows, summary, np.asarray(truth, dtype=float)
@@ -289,14 +292,14 @@ def machine_benchmark(machine, seeds, stepped_seeds):
                   f"median {100 * np.median(errors):.2f} %, p90 {100 * np.percentile(errors, 90):.2f} %")
     print("-- model update from the multisine FRF (3 modes, per-element moduli, seed 1):")
     t0 = time.perf_counter()
-    report_update("rig data", *update(machine, model, ms["features"]))
+    report_update("rig data", *update(machine, model, ms["features"], table=ms["table"]))
     report_update("the truth's exact features", *update(machine, model, None, truth_rig=rig_model))
     # one modulus per tag against the one the truth's own features give: where the truth varies element by element
     # (demo20: 0.54 to 0.09 over elements 5-8) no single modulus is "the truth", and their mean is no comparator
     exact = update(machine, model, None, truth_rig=rig_model, per_element=False)
     report_update("the truth's exact features, one modulus per tag (against the mean of the truth's)", *exact)
     report_update("rig data, one modulus per tag (against the truth's exact features' fit)",
-                  *update(machine, model, ms["features"], per_element=False, truth=exact[1].values))
+                  *update(machine, model, ms["features"], per_element=False, truth=exact[1].values, table=ms["table"]))
     print(f"   ({time.perf_counter() - t0:.0f} s)")
 
 
