@@ -145,6 +145,7 @@ def test_the_fit_estimators_bias_is_taken_off_the_features(hs_machine, hs_config
 
     corrected, result = debiased_update(problem, plain, problem.settings, bias_at)
     np.testing.assert_allclose(result.values, [0.55, 0.75, 1.0, 0.008], rtol=0.01)
+    assert result.bias_spread.max() < 0.01  # the passes settled
     assert (corrected.measured["frequency_bias_hz"] != 0).all()
     assert result.starts["chosen"].sum() == 1 and result.starts.iloc[-1]["kind"] == "estimator bias"
     table = pd.DataFrame(comparison_rows(corrected, corrected.start, result.values))

@@ -38,7 +38,7 @@ if settings.estimator_bias:  # the fit stage's estimator on the updated model's 
 original_b = problem.objective(problem.start)
 log.info("B(e) %.4g -> %.4g after %d evaluations; starts:\n%s", original_b, result.objective,
          result.evaluations, result.starts.to_string(index=False))
-rows, correlation, summary = identifiability(problem, result.values)
+rows, correlation, summary = identifiability(problem, result.values, added_std=result.bias_spread)
 log.info("identifiability: %d of %d variable directions determined; singular values %s", summary["rank"], len(variables),
          np.array2string(summary["singular_values"], precision=3))
 
@@ -56,7 +56,8 @@ table = []
 for variable, value, row in zip(variables, result.values, rows):
     entry = {"variable": variable.name, "kind": variable.kind, "tag": variable.tag,
              "elements": " ".join(str(e + 1) for e in variable.elements), "start": variable.start, "updated": value,
-             "lower": variable.lower, "upper": variable.upper, **row}
+             "lower": variable.lower, "upper": variable.upper, **row,
+             "estimator_bias_spread": np.nan if result.bias_spread is None else result.bias_spread[len(table)]}
     if variable.kind == "stiffness":
         modulus = structural.elements[variable.elements[0]].material.youngs_modulus_pa
         entry.update(youngs_modulus_start_pa=modulus, youngs_modulus_updated_pa=modulus * value)
