@@ -39,8 +39,8 @@ from .modal_features import LIGHT_DAMPING
 from .plant import RIGID_MODES, damping_ratio
 
 __all__ = ["ChannelModel", "ChannelFit", "FitError", "fit_channel", "fit_plant_channel", "select_modes", "known_response",
-           "rigid_pole_hz", "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes", "real_zero_hz",
-           "fit_verdict", "dipole_hz", "negative_delay", "MAX_CHI2", "OVERDAMPED", "DIPOLE", "NEGATIVE_DELAY_SIGMAS"]
+           "rigid_pole_hz", "select_channels", "feature_rows", "model_rows", "model_from_row", "fit_orders", "max_fit_modes",
+           "real_zero_hz", "fit_verdict", "dipole_hz", "negative_delay", "MAX_CHI2", "OVERDAMPED", "DIPOLE", "NEGATIVE_DELAY_SIGMAS"]
 
 
 class FitError(AmbidError):

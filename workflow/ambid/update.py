@@ -449,7 +449,8 @@ def update_model(problem, settings, start=None):
                         starts=summary, evaluations=int(summary["evaluations"].sum()))
 
 
-# the estimator's root stands for the model's if each is the other's nearest and they lie this close (relative frequency)
+# the estimator's root stands for the model's if each is the other's nearest and they lie this close
+# (relative frequency)
 BIAS_MATCH = 0.02
 
 
@@ -505,7 +506,8 @@ def estimator_bias(estimator_plant, plant, grids, measured, fit_settings):
             if truth.empty or estimate.empty:
                 continue
             reference = truth.iloc[int(np.argmin(np.abs(truth["frequency_hz"].to_numpy() - row["frequency_hz"])))]
-            nearest = estimate.iloc[int(np.argmin(np.abs(estimate["frequency_hz"].to_numpy() - reference["frequency_hz"])))]
+            frequencies = estimate["frequency_hz"].to_numpy()
+            nearest = estimate.iloc[int(np.argmin(np.abs(frequencies - reference["frequency_hz"])))]
             back = truth.iloc[int(np.argmin(np.abs(truth["frequency_hz"].to_numpy() - nearest["frequency_hz"])))]
             if (back["frequency_hz"] == reference["frequency_hz"]
                     and abs(nearest["frequency_hz"] / reference["frequency_hz"] - 1) <= BIAS_MATCH):
@@ -548,7 +550,7 @@ def without_bias(measured, bias):
 
 
 def debiased_update(problem, result, settings, bias_at, passes=4, tolerance=1e-3):
-    """The update again against the features less the estimator's bias at its result (`estimator_bias`), to a fixed point.
+    """The update again against the features less the estimator's bias at its result (`estimator_bias`), repeated.
 
     ``bias_at(values)`` gives the bias at the design values.  The bias depends on
     where the model's roots lie, so each pass takes it at the last pass' values and
@@ -571,7 +573,8 @@ def debiased_update(problem, result, settings, bias_at, passes=4, tolerance=1e-3
     history, starts = [result.history], [result.starts.assign(chosen=False)]
     evaluations, count, corrected, current = result.evaluations, int(result.starts["start"].max()) + 1, problem, result
     for _ in range(passes):
-        corrected = UpdateProblem(problem.model, without_bias(problem.measured, bias_at(current.values)), problem.settings)
+        measured = without_bias(problem.measured, bias_at(current.values))
+        corrected = UpdateProblem(problem.model, measured, problem.settings)
         refit = update_model(corrected, replace(settings, starts=1), start=current.values)
         history.append(refit.history.assign(start=count))
         starts.append(refit.starts.assign(start=count, kind="estimator bias", chosen=False))
@@ -735,9 +738,10 @@ def comparison_rows(problem, original, updated):
         thesis = f"{row['input']}({THESIS_INDEX[row['input']]},{THESIS_INDEX[row['output']]})"
         ordinal = ORDINALS.get(int(row["number"]), f"#{int(row['number'])}")
         for quantity, unit, measured, std, bias, before, after in (
-                ("frequency", "Hz", row["frequency_hz"], row["frequency_std_hz"], row.get("frequency_bias_hz", 0.0), f0[i],
-                 f1[i]),
-                ("damping ratio", "-", row["damping_ratio"], row["damping_std"], row.get("damping_bias", 0.0), z0[i], z1[i])):
+                ("frequency", "Hz", row["frequency_hz"], row["frequency_std_hz"], row.get("frequency_bias_hz", 0.0),
+                 f0[i], f1[i]),
+                ("damping ratio", "-", row["damping_ratio"], row["damping_std"], row.get("damping_bias", 0.0),
+                 z0[i], z1[i])):
             rows.append({"feature": f"{channel} {ordinal} {kind} {quantity}", "thesis_channel": thesis, "output": row["output"],
                          "input": row["input"], "root": row["root"], "number": int(row["number"]), "quantity": quantity,
                          "unit": unit, "measured": measured, "measured_std": std, "estimator_bias": bias,

@@ -46,18 +46,17 @@ log.info("identifiability: %d of %d variable directions determined; singular val
 comparison = pd.DataFrame(comparison_rows(problem, problem.start, result.values))
 write_parquet(comparison, snakemake.output.comparison, kind="update_comparison",
               units={"measured": "Hz or -", "measured_std": "Hz or -", "estimator_bias": "Hz or -", "original": "Hz or -",
-                     "updated": "Hz or -",
-                     "absolute_error": "Hz or -", "number": "-",
-                     "error_pct": "%", "original_error_pct": "%"},
+                     "updated": "Hz or -", "absolute_error": "Hz or -", "number": "-", "error_pct": "%",
+                     "original_error_pct": "%"},
               metadata={"machine": machine_name, "run": run})
 write_tsv(comparison, snakemake.output.comparison_table)
 structural = model.machine.rotor  # the moduli as configured, earlier element_stiffness effects included
 table = []
-for variable, value, row in zip(variables, result.values, rows):
+spread = np.full(len(variables), np.nan) if result.bias_spread is None else result.bias_spread
+for variable, value, row, moved in zip(variables, result.values, rows, spread):
     entry = {"variable": variable.name, "kind": variable.kind, "tag": variable.tag,
              "elements": " ".join(str(e + 1) for e in variable.elements), "start": variable.start, "updated": value,
-             "lower": variable.lower, "upper": variable.upper, **row,
-             "estimator_bias_spread": np.nan if result.bias_spread is None else result.bias_spread[len(table)]}
+             "lower": variable.lower, "upper": variable.upper, **row, "estimator_bias_spread": moved}
     if variable.kind == "stiffness":
         modulus = structural.elements[variable.elements[0]].material.youngs_modulus_pa
         entry.update(youngs_modulus_start_pa=modulus, youngs_modulus_updated_pa=modulus * value)
