@@ -217,6 +217,21 @@ def diagnose_priority(wildcards):
     return 1 + any(step["update"] for step in variant_steps(wildcards))
 
 
+def update_inputs(wildcards):
+    """The run's features and FRF, the machine file and the calibration's operating point (the variants' own)."""
+    entry = config["machines"][wildcards.machine]
+    inputs = {
+        "features": f"results/{wildcards.machine}/fit/{wildcards.run}/features.parquet",
+        "frf": f"results/{wildcards.machine}/frf/{wildcards.run}/frf.parquet",
+        "machine": entry["model"],
+    }
+    if entry.get("operating_point"):
+        inputs["operating_point"] = (
+            f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
+        )
+    return inputs
+
+
 def variant_inputs(wildcards):
     """Machine file, the calibration's operating point and the updates the variant takes."""
     entry = config["machines"][wildcards.machine]

@@ -3,9 +3,7 @@
 
 rule update:
     input:
-        features="results/{machine}/fit/{run}/features.parquet",
-        frf="results/{machine}/frf/{run}/frf.parquet",
-        machine=machine_model_file,
+        unpack(update_inputs),
     output:
         comparison="results/{machine}/update/{run}/comparison.parquet",
         comparison_table="results/{machine}/update/{run}/comparison.tsv",

@@ -283,6 +283,15 @@ def test_a_diagnosis_of_a_variant_updated_from_another_run_waits_for_the_runs_ow
     assert planned["thesis01"] == ["thesis01"]  # the variant's update is the run's own: nothing more
 
 
+def test_the_update_linearizes_the_bearings_where_the_variants_do(workdir):
+    """With ``operating_point:`` the update waits for the calibration and takes its operating point (as rule variant)."""
+    result = snakemake(workdir, "--dry-run", "results/hs_eden_like/update/ident01/machine.yaml")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "hs_eden_like cal01: magnetic center from the calibration log" in result.stdout + result.stderr
+    result = snakemake(workdir, "--dry-run", "results/demo20/update/thesis01/machine.yaml")
+    assert result.returncode == 0 and "magnetic center from the calibration log" not in result.stdout + result.stderr
+
+
 def test_multisine_run_on_the_rig_to_fit_and_the_methods_table(workdir):
     """A multisine run of demo20 on its rig (short settings, same code path): log, BLA with its floors, fit, methods."""
     def change(config):

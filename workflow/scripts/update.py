@@ -5,12 +5,13 @@ import pandas as pd
 
 from ambid.compare import model_channels
 from ambid.frf import channel
-from ambid.io import read_parquet, rule_log, write_parquet, write_tsv, write_yaml
+from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv, write_yaml
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
 from ambid.update import (UpdateSettings, bias_at_values, comparison_rows, debiased_update, identifiability,
                           update_channels, update_model, update_problem, updated_machine_config)
+from ambid.variants import variant_config
 
 log = rule_log(snakemake.log[0], "update")
 
@@ -19,6 +20,9 @@ settings = UpdateSettings.from_config(snakemake.params.settings, {**snakemake.pa
                                                                   **({"modes": snakemake.params.run_modes}
                                                                      if snakemake.params.run_modes else {})})
 machine_config = snakemake.params.machine_config
+if "operating_point" in snakemake.input.keys():  # the bearings linearized where the variants have them
+    operating_point = read_yaml(snakemake.input.operating_point)["bearings"]["radial"]["operating_point"]
+    machine_config = variant_config(machine_config, [], operating_point, source=snakemake.input.machine)
 machine = machine_from_config(machine_config, name=machine_name, source=snakemake.input.machine)
 features, _ = read_parquet(snakemake.input.features, kind="fit_features")
 problem = update_problem(machine, features, settings)
