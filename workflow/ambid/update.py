@@ -543,7 +543,9 @@ def without_bias(measured, bias):
     """The measured features less the estimator's ``bias`` (`estimator_bias`; NaN: none), with the bias as columns."""
     corrected = measured.copy()
     corrected["frequency_bias_hz"] = bias["frequency_bias_hz"].fillna(0.0).to_numpy()
-    corrected["damping_bias"] = bias["damping_bias"].fillna(0.0).to_numpy()
+    damping_bias = bias["damping_bias"].fillna(0.0).to_numpy()
+    # a damping ratio the correction would take to zero or below keeps its value (eq. 5.31 divides by it)
+    corrected["damping_bias"] = np.where(measured["damping_ratio"].to_numpy() - damping_bias > 0, damping_bias, 0.0)
     corrected["frequency_hz"] = measured["frequency_hz"] - corrected["frequency_bias_hz"]
     corrected["damping_ratio"] = measured["damping_ratio"] - corrected["damping_bias"]
     return corrected
@@ -559,7 +561,8 @@ def debiased_update(problem, result, settings, bias_at, passes=4, tolerance=1e-3
     stop when no value moves by more than ``tolerance`` (relative), or after
     ``passes``.  They need not settle: the estimator chooses its model's structure
     from a stabilization diagram, so its bias can jump between two parameter sets
-    (hs_eden_like's ms01: the stacks alternate by 0.5 %).  Each value's move in the
+    (hs_eden_like's ms01 with the bearings at the nominal operating point: the stacks
+    alternated by 0.5 %).  Each value's move in the
     last pass is returned as ``bias_spread``, an uncertainty of the correction.
 
     Returns
@@ -572,6 +575,7 @@ def debiased_update(problem, result, settings, bias_at, passes=4, tolerance=1e-3
     """
     history, starts = [result.history], [result.starts.assign(chosen=False)]
     evaluations, count, corrected, current = result.evaluations, int(result.starts["start"].max()) + 1, problem, result
+    spread = np.zeros(len(result.values))
     for _ in range(passes):
         measured = without_bias(problem.measured, bias_at(current.values))
         corrected = UpdateProblem(problem.model, measured, problem.settings)
