@@ -171,7 +171,7 @@ def parameters(model):
 def default_runs():
     """Chi2 per channel of the default estimator and the thesis' 4/6 fit on the default runs' measured FRFs."""
     from ambid.channel_fit import fit_channel, fit_verdict, real_zero_hz, select_channels
-    from ambid.frf import channel
+    from ambid.frf import channel, radial_estimator
     from ambid.io import read_parquet
 
     config = yaml.safe_load(open(ROOT / "config" / "config.yaml"))
@@ -191,7 +191,7 @@ def default_runs():
                 print(f"{machine:13s} {run:9s} no FRF: run `make run` first")
                 continue
             table, _ = read_parquet(path, kind="frf")
-            estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+            estimator = radial_estimator(table)
             for output, input_axis in select_channels(settings.get("channels", "same_plane")):
                 f, g, s = channel(table, estimator, output, input_axis)
                 if f.size == 0:

@@ -217,6 +217,11 @@ def diagnose_priority(wildcards):
     return 1 + any(step["update"] for step in variant_steps(wildcards))
 
 
+def operating_point_file(machine):
+    """The operating point of the calibration a machine's model is linearized at (its ``operating_point:`` run)."""
+    return f"results/{machine}/calibration/{config['machines'][machine]['operating_point']}/operating_point.yaml"
+
+
 def update_inputs(wildcards):
     """The run's features and FRF, the machine file and the calibration's operating point (the variants' own)."""
     entry = config["machines"][wildcards.machine]
@@ -226,9 +231,7 @@ def update_inputs(wildcards):
         "machine": entry["model"],
     }
     if entry.get("operating_point"):
-        inputs["operating_point"] = (
-            f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
-        )
+        inputs["operating_point"] = operating_point_file(wildcards.machine)
     return inputs
 
 
@@ -237,9 +240,7 @@ def variant_inputs(wildcards):
     entry = config["machines"][wildcards.machine]
     inputs = {"machine": entry["model"]}
     if entry.get("operating_point"):
-        inputs["operating_point"] = (
-            f"results/{wildcards.machine}/calibration/{entry['operating_point']}/operating_point.yaml"
-        )
+        inputs["operating_point"] = operating_point_file(wildcards.machine)
     inputs["updates"] = [
         f"results/{wildcards.machine}/update/{step['update']}/machine.yaml"
         for step in variant_steps(wildcards)

@@ -34,7 +34,7 @@ from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
 __all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "FrfStage", "frf_stage",
-           "channel"]
+           "channel", "radial_estimator"]
 
 
 def log_arrays(frame, level=0):
@@ -284,6 +284,11 @@ def frf_stage(frame, settings, log, source=None, source_lines=None, original=Non
                                 "currents only); log I_upper and I_lower to tell them apart", 0.0))
     table, floors, mimo = frf_from_log(frame, floor_settings, source=source, estimator=settings["estimator"])
     return FrfStage(table, floors, mimo, findings, scatter_noise, repeated_steps(frame))
+
+
+def radial_estimator(table):
+    """The radial estimator a stage reads from an `frf_table`: ``mimo`` where it has the MIMO estimate, else ``siso``."""
+    return "mimo" if (table["estimator"] == "mimo").any() else "siso"
 
 
 def channel(table, estimator, output, input_axis, systematic=False):

@@ -39,7 +39,7 @@ import scipy.optimize
 from .channel_fit import FitError, feature_rows, fit_plant_channel, select_channels
 from .compare import model_channels
 from .errors import AmbidError, ConfigError, settings_from_mapping
-from .frf import channel
+from .frf import channel, radial_estimator
 from .machine import machine_from_config
 from .modal_features import LIGHT_DAMPING, ModalFeatureModel, design_variables, root_feature_derivatives, root_features
 from .plant import Plant, damping_ratio
@@ -526,7 +526,7 @@ def bias_at_values(machine_config, problem, frf_table, fit_settings, name="machi
     has one).
     """
     estimator_plant = Plant(machine_from_config(machine_config, name=name))
-    kind = "mimo" if (frf_table["estimator"] == "mimo").any() else "siso"
+    kind = radial_estimator(frf_table)
     grids = {}
     for output, input_axis in sorted(set(zip(problem.measured["output"], problem.measured["input"]))):
         frequency, _, std = channel(frf_table, kind, output, input_axis)

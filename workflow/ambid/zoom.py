@@ -16,7 +16,7 @@ coarse points outside the zoom bands.
 import numpy as np
 
 from .channel_fit import FitError, fit_channel, known_response, rigid_pole_hz, select_channels
-from .frf import channel
+from .frf import channel, radial_estimator
 from .modal_features import LIGHT_DAMPING
 
 __all__ = ["fitted_features", "zoom_bands", "band_lines", "outside_bands", "stepped_zoom_plan", "merge_stepped"]
@@ -52,7 +52,7 @@ def fitted_features(table, plant, channels="same_plane", estimator=None, max_rel
         Channels that could not be fitted, and why.
     """
     if estimator is None:
-        estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+        estimator = radial_estimator(table)
     hint = rigid_pole_hz(plant)
     rows, skipped = [], []
     for output, input_axis in select_channels(channels):

@@ -4,7 +4,7 @@ import numpy as np
 
 from ambid.bla import distortion_levels, excitation_covariance, line_levels, multisine_frf, multisine_passes
 from ambid.floor import FloorSettings
-from ambid.frf import channel
+from ambid.frf import channel, radial_estimator
 from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import read_multisine_log
 from ambid.machine import ALL_AXES, RADIAL_AXES
@@ -55,7 +55,7 @@ for _, row in levels.iterrows():
     log.info("%s %s: odd distortion %s, even %s, noise %.1f dB relative to the excited lines", row["output"], row["band"],
              *(f"{row[k]:.1f} dB" if np.isfinite(row[k]) else "below the noise" for k in ("odd_db", "even_db")),
              row["noise_db"])
-estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+estimator = radial_estimator(table)
 write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {machine} {run} multisine BLA ({estimator})")
 title = f"{machine} {run} (multisine BLA)"
 dpi = snakemake.params.dpi

@@ -7,7 +7,7 @@ from ambid.channel_fit import (MAX_CHI2, FitError, feature_rows, fit_plant_chann
                                model_rows, select_channels)
 from ambid.findings import Finding, write_findings
 from ambid.fit import classify_poles, levy_thesis
-from ambid.frf import channel
+from ambid.frf import channel, radial_estimator
 from ambid.io import read_parquet, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -19,7 +19,7 @@ settings = snakemake.params.settings
 machine = machine_from_config(snakemake.params.machine_config, name=snakemake.wildcards.machine, source=snakemake.input.machine)
 plant = Plant(machine)
 table, _ = read_parquet(snakemake.input.frf, kind="frf")
-estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+estimator = radial_estimator(table)
 numerator_order, denominator_order = settings["thesis_orders"]
 features, models, panels, fitted, diagrams, selected, findings = [], [], [], [], {}, {}, []
 for output, input_axis in select_channels(settings["channels"]):

@@ -3,7 +3,7 @@
 import numpy as np
 import pandas as pd
 
-from ambid.frf import channel
+from ambid.frf import channel, radial_estimator
 from ambid.io import read_parquet, rule_log, write_tsv
 from ambid.machine import RADIAL_AXES
 from ambid.plots import method_comparison, save_figure
@@ -18,7 +18,7 @@ for run, frf_path, log_path in zip(snakemake.params.runs, snakemake.input.frf, s
     metadata = log_info["metadata"]
     method = "multisine" if log_info["kind"] == "multisine_log" else "stepped sine"
     machine_time_s = metadata.get("machine_time_s", metadata.get("experiment_s", np.nan))
-    estimator = "mimo" if (table["estimator"] == "mimo").any() else "siso"
+    estimator = radial_estimator(table)
     if "systematic_std" not in table:
         table = table.assign(systematic_std=np.nan)
     diagonal = table[(table["estimator"] == estimator) & (table["output"] == table["input"])

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 
 from ambid.compare import model_channels
-from ambid.frf import channel
+from ambid.frf import channel, radial_estimator
 from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv, write_yaml
 from ambid.machine import machine_from_config
 from ambid.plant import Plant
@@ -31,7 +31,7 @@ log.info("%d measured features of %d channels, %d design variables, optimizer %s
          len(set(zip(measured["output"], measured["input"]))), len(variables), settings.optimizer, settings.starts)
 result = update_model(problem, settings)
 frf, _ = read_parquet(snakemake.input.frf, kind="frf")
-estimator = "mimo" if (frf["estimator"] == "mimo").any() else "siso"
+estimator = radial_estimator(frf)
 if settings.estimator_bias:  # the fit stage's estimator on the updated model's own FRF: its error, taken off the features
     bias_at = bias_at_values(machine_config, problem, frf, snakemake.params.fit_settings, machine_name)
     problem, result = debiased_update(problem, result, settings, bias_at)
