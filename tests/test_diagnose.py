@@ -294,6 +294,32 @@ def test_cells_and_report(demo):
     assert "helps_channels" in table.columns
 
 
+def test_plants_kept_by_their_structure_give_the_same_response(demo):
+    """An evaluator keeps the plants of the structure effects it has met (`plant_with_effects`' ``structures``) and
+    puts the bearings', sensors' and housings' effects on top of the others' plant, coupled from its receptances: the
+    response must be the plant's built afresh with all the effects, and the plants kept are bounded."""
+    from ambid.diagnose import STRUCTURES_KEPT
+
+    base = Plant(demo)
+    frequency = demo.radial_grid.frequency_hz
+    template = {(o, i): (frequency, None, None) for o in ("DX", "NX") for i in ("DX", "NX")}
+    template.update({("I_DX", "DX"): (frequency, None, None)})
+    structures = {}
+    for k in range(2 * STRUCTURES_KEPT):
+        effects = [effect("element_stiffness", tag="design", scale=0.9 + 0.01 * (k % 3)),
+                   effect("delay", delay_s=1e-5 * (1 + k)),
+                   effect("actuator_coefficients", force_constant_scale=[1.0 + 0.01 * k, 1.0, 0.98, 1.0, 1.0]),
+                   effect("noncollocation", de_offset_m=0.001 * k, nde_offset_m=0.0),
+                   effect("foundation_mode", frequency_hz=300.0 + 10 * k, mass_kg=5.0, damping_ratio=0.02)]
+        kept = model_response(plant_with_effects(base, effects, structures), template)
+        afresh = model_response(Plant(demo.with_effects(demo.effects + tuple(effects))), template)
+        for key in template:
+            assert np.max(np.abs(kept[key] - afresh[key])) < 1e-9 * np.max(np.abs(afresh[key]))
+        assert len(structures) <= STRUCTURES_KEPT
+    # a rotor's plant is met again while it is kept: built once, the bearings, sensors and housings coupled on top
+    assert any(len(key) == 1 for key in structures) and any(len(key) == 2 for key in structures)
+
+
 def test_a_fit_through_no_change_keeps_a_jacobian():
     """A stiffness factor near 1 sits near 0 on its log search scale, where scipy's relative ``diff_step`` takes a step
     near 0 and a Jacobian of rounding noise: on the independent rig's demo20 log with the design elements 5 % stiffer
@@ -322,7 +348,9 @@ def test_a_weak_narrow_housing_mode_between_scan_points_is_a_lead_where_the_misf
     config = load_machine_config("demo20")
     config["frequency_grid"]["radial"]["points"] = 80
     machine = machine_from_config(config)
-    scan = FreeParameter("frequency_hz", 20.0, 5000.0, scan=32).grid()
+    housing = next(c for c in candidate_space(machine) if c.label == "foundation_mode")
+    scan = housing.free[0].grid()  # the candidate's own frequency scan (without misfit peaks)
+    assert housing.free[0].name == "frequency_hz" and 0.15 < np.exp(scan[1] - scan[0]) - 1 < 0.25
     frequency_hz = float(np.exp(0.5 * (scan[20] + scan[21])))
     measured = synthetic_measurement(machine, [effect("foundation_mode", frequency_hz=frequency_hz, damping_ratio=0.01,
                                                       mass_kg=12000.0)], seed=5)

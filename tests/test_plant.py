@@ -74,6 +74,39 @@ class TestModalReduction:
         error = np.linalg.norm(model.frequency_response(frequency) - direct, axis=(1, 2)) / np.linalg.norm(direct, axis=(1, 2))
         assert error.max() < 1e-9
 
+    @pytest.mark.parametrize("machine_fixture", ["hs_machine", "demo_machine"])
+    @pytest.mark.parametrize("effects", [
+        [("foundation_mode", {"frequency_hz": 300.0, "mass_kg": 20.0, "damping_ratio": 0.02})],
+        [("foundation_mode", {"frequency_hz": 2100.0, "mass_kg": 0.2, "damping_ratio": 0.001})],
+        [("actuator_coefficients", {"force_constant_scale": [1.1, 0.9, 1.3, 0.8, 1.0],
+                                    "bias_current_scale": [0.95, 1.05, 1.3, 0.75, 1.0]})],
+        [("actuator_coefficients", {"force_constant_scale": [1.2, 1.0, 1.0, 0.7, 1.0]}),
+         ("foundation_mode", {"frequency_hz": 40.0, "mass_kg": 3000.0, "damping_ratio": 0.3})],
+        [("noncollocation", {"de_offset_m": 0.012, "nde_offset_m": -0.02})],
+        [("noncollocation", {"de_offset_m": -0.004, "nde_offset_m": 0.005}),
+         ("actuator_coefficients", {"bias_current_scale": [1.1, 0.9, 1.0, 1.0, 1.0]}),
+         ("foundation_mode", {"frequency_hz": 900.0, "mass_kg": 1.0, "damping_ratio": 0.05})],
+    ])
+    def test_bearings_and_housings_coupled_from_the_receptances_equal_the_modal_model(self, request, machine_fixture,
+                                                                                      effects):
+        """The diagnosis' actuator, sensor-position and housing candidates take their FRF from the plant without them
+        (Woodbury on the bearings' kx, its eigenvectors at the moved sensors, the housings' Schur complement): it must be
+        the modal model's with those effects, to rounding."""
+        from ambid.effects import EFFECTS
+
+        machine = request.getfixturevalue(machine_fixture)
+        base = Plant(machine)
+        added = [EFFECTS[name](**parameters) for name, parameters in effects]
+        plant = base.with_structure_effects(added)
+        assert plant._coupled_from is base  # the coupled path is the one under test
+        frequency = np.geomspace(1.0, 3000.0, 300)
+        coupled = plant.radial_frequency_response(frequency)
+        modal = plant.radial.frequency_response(frequency)
+        assert np.max(np.abs(coupled - modal)) < 1e-9 * np.max(np.abs(modal))
+        # and the ordinary path of a plant built from scratch gives the same
+        assert_allclose(Plant(machine.with_effects([*machine.effects, *added])).radial_frequency_response(frequency), modal,
+                        rtol=1e-12, atol=0)
+
     def test_more_modes_converge(self, hs_machine):
         frequency = np.linspace(1, 750, 50)
         full = full_order_response(hs_machine, frequency)

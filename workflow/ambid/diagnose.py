@@ -68,6 +68,7 @@ from .compare import channel_family, model_response
 from .effects import EFFECTS
 from .errors import AmbidError, ConfigError, ModelError
 from .machine import ALL_AXES
+from .plant import COUPLED_EFFECTS
 from .floor import band_labels, frequency_bands
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
@@ -79,6 +80,8 @@ __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "Fi
 INDISTINGUISHABLE_BIC = 10.0
 #: A parameter this close to a bound (fraction of its search span) has run into it.
 AT_BOUND = 1e-3
+#: Plants with other structure effects an evaluator keeps (`plant_with_effects`).
+STRUCTURES_KEPT = 8
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
 #: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
@@ -405,14 +408,32 @@ def misfit_peaks(measured, residual, count=4):
 
 
 # ------------------------------------------------------------------------------------------ evaluation
-def plant_with_effects(plant, effects):
+def plant_with_effects(plant, effects, structures=None):
     """The plant with more effects: the structure ones in one rebuild of the modal model, then speed and signal effects.
 
     A speed (``gyroscopic``) and the signal effects reuse the modal model (`ambid.plant.Plant.at_speed`,
-    `~ambid.plant.Plant.with_signal_effects`).
+    `~ambid.plant.Plant.with_signal_effects`).  With ``structures`` (a dict the caller keeps, bounded by it), the
+    plants with the same structure effects (same values) are built once: a refit's trial that moves only a delay or
+    an amplifier reuses the modal model and its FRF.  There the effects that leave the rotor as it is (bearing
+    coefficients, sensor positions, housings: `ambid.plant.COUPLED_EFFECTS`) go on top of the plant with the
+    others, coupled from its receptances (`ambid.plant.Plant.coupled_response`).
     """
     effects = [e for e in effects if e is not None]
-    plant = plant.with_structure_effects([e for e in effects if e.location == "structure" and e.name != "gyroscopic"])
+    structure = [e for e in effects if e.location == "structure" and e.name != "gyroscopic"]
+    if structures is None:
+        plant = plant.with_structure_effects(structure)
+    else:
+        # the rotor's changes, then the bearings', sensors' and housings' on top
+        rebuilt = [e for e in structure if e.name not in COUPLED_EFFECTS]
+        coupled = [e for e in structure if e.name in COUPLED_EFFECTS]
+        key = ()
+        for group in (rebuilt, coupled) if coupled else (rebuilt,):
+            key += (tuple(repr(e) for e in group),)  # (repr: the values exactly, a float's repr round-trips)
+            if key not in structures:
+                if len(structures) >= STRUCTURES_KEPT:
+                    structures.pop(next(iter(structures)))  # the oldest
+                structures[key] = plant.with_structure_effects(group)
+            plant = structures[key]
     for effect in effects:
         if effect.name == "gyroscopic":
             plant = plant.at_speed(effect.speed_rpm * np.pi / 30)
@@ -431,10 +452,11 @@ class _Evaluator:
         self.std = np.concatenate([std for _, _, std in measured.values()])
         self.relative = self.std / np.maximum(np.abs(self.values), 1e-300)
         self.evaluations = 0
+        self.structures = {}  # plants by their structure effects (`plant_with_effects`)
 
     def predicted(self, effects):
         self.evaluations += 1
-        response = model_response(plant_with_effects(self.plant, effects), self.measured)
+        response = model_response(plant_with_effects(self.plant, effects, self.structures), self.measured)
         return np.concatenate([response[key] for key in self.measured])
 
     def residual(self, effects):

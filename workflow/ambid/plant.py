@@ -29,6 +29,9 @@ from .sampled_loop import closed_loop, sampled_system, zoh_discretize  # zoh_dis
 __all__ = ["Plant", "damping_ratio", "zoh_discretize", "RIGID_MODES"]
 
 RIGID_MODES = 2  # translation and tilt of the free-free rotor in each plane
+# structure effects that leave the rotor and its modes as they are: a plant with them is coupled from the
+# one without (`Plant.coupled_response`)
+COUPLED_EFFECTS = ("actuator_coefficients", "foundation_mode", "noncollocation")
 
 
 def damping_ratio(poles):
@@ -66,40 +69,54 @@ class SecondOrderModel:
     speed_rad_s: float
     planes: tuple = ()  # index arrays of the x- and y-plane coordinates, coupled only by the gyroscopic terms
 
-    def frequency_response(self, frequency_hz):
+    def frequency_response(self, frequency_hz, output_matrix=None):
         """Structural FRF, array (n_freq, n_out, n_in).
 
         By modal superposition of the first-order form, ``C V (jw - Lambda)^-1 V^-1 B``
         (one eigen-decomposition per block of `uncoupled_states`, then O(n) per frequency); by a batched linear solve
         of the dynamic stiffness when the eigenvectors are ill-conditioned (a
-        nearly defective system).
+        nearly defective system).  ``output_matrix`` replaces ``C`` (other sensors on the same structure: the
+        eigen-decomposition is kept).
         """
         frequency_hz = np.asarray(frequency_hz, dtype=float)
+        output_matrix = self.output_matrix if output_matrix is None else np.asarray(output_matrix, dtype=float)
+        if not np.isfinite(output_matrix).all():
+            raise ModelError("the structural model has non-finite entries (sensor shapes)")
+        modal = self._modal_form
+        if modal is not None:
+            blocks, poles, vectors, right = modal
+            left = np.hstack([output_matrix[:, states] @ v[: states.size] for states, v in zip(blocks, vectors)])
+            resolvent = 1.0 / (2j * np.pi * frequency_hz[:, None] - poles[None, :])
+            return _modal_sum(left, resolvent, right)
+        w = 2 * np.pi * frequency_hz[:, None, None]
+        dynamic = self.stiffness - w**2 * self.mass + 1j * w * (self.damping + self.speed_rad_s * self.gyroscopic)
+        return output_matrix @ np.linalg.solve(dynamic, self.input_matrix.astype(complex))
+
+    @cached_property
+    def _modal_form(self):
+        """``(blocks, poles, V, V^-1 B)`` of `frequency_response`'s modal superposition, once per model; None where the
+        eigenvectors of a block are ill-conditioned."""
         a, b, c = self.state_space()
         if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(c).all()):
             raise ModelError("the structural model has non-finite entries (mass, damping, stiffness or shapes)")
-        poles, left, right = [], [], []
+        blocks, poles, vectors, right = [], [], [], []
         # one eigen-decomposition per uncoupled block (the x and y planes of a rotor at standstill): the same modes
         # at about half the cost of one of the whole
         for states in self.uncoupled_states():
             block = np.concatenate([states, states + self.mass.shape[0]])
-            block_poles, vectors = scipy.linalg.eig(a[np.ix_(block, block)], check_finite=False)  # (checked above)
+            block_poles, block_vectors = scipy.linalg.eig(a[np.ix_(block, block)], check_finite=False)  # (checked above)
             # the eigenvectors' condition from their LU factors (LAPACK gecon's 1-norm estimate), which also solve for
             # V^-1 B
-            factors = scipy.linalg.lu_factor(vectors, check_finite=False)
+            factors = scipy.linalg.lu_factor(block_vectors, check_finite=False)
             gecon = scipy.linalg.get_lapack_funcs("gecon", (factors[0],))
-            reciprocal_condition, _ = gecon(factors[0], np.linalg.norm(vectors, 1), norm="1")
+            reciprocal_condition, _ = gecon(factors[0], np.linalg.norm(block_vectors, 1), norm="1")
             if not reciprocal_condition > 1e-8:
-                break
+                return None
+            blocks.append(states)
             poles.append(block_poles)
-            left.append(c[:, block] @ vectors)
+            vectors.append(block_vectors)  # the output is C q: only the rows of the positions q count
             right.append(scipy.linalg.lu_solve(factors, b[block].astype(complex), check_finite=False))
-        else:
-            resolvent = 1.0 / (2j * np.pi * frequency_hz[:, None] - np.concatenate(poles)[None, :])
-            return _modal_sum(np.hstack(left), resolvent, np.vstack(right))
-        w = 2 * np.pi * frequency_hz[:, None, None]
-        dynamic = self.stiffness - w**2 * self.mass + 1j * w * (self.damping + self.speed_rad_s * self.gyroscopic)
-        return self.output_matrix @ np.linalg.solve(dynamic, self.input_matrix.astype(complex))
+        return blocks, np.concatenate(poles), vectors, np.vstack(right)
 
     def uncoupled_states(self):
         """Index arrays of the coordinates ``q`` that no term couples: the ``planes`` at standstill, else all of them."""
@@ -152,6 +169,7 @@ class Plant:
         self.modes = self.rotor.planar_modes(machine.retained_modes, loads)
         self.radial = self._radial_model()
         self._responses = {}  # structural responses by frequency grid, shared with `with_signal_effects` copies
+        self._coupled_from = None  # the plant this one's structural FRF is coupled from (`coupled_response`)
 
     def with_signal_effects(self, effects):
         """A copy with input- and output-side ``effects`` added, sharing the structural model.
@@ -182,6 +200,9 @@ class Plant:
         applied = replace(self.machine, effects=(*effects, *self.input_effects, *self.output_effects))
         plant = Plant(applied, static_correction=self.static_correction)
         plant.machine = replace(plant.machine, effects=self.machine.effects + effects)
+        if self.machine.foundation is None and all(e.name in COUPLED_EFFECTS for e in effects):
+            # the same rotor: its FRF from this plant's receptances, without an eigen-solution
+            plant._coupled_from = self
         return plant
 
     def at_speed(self, speed_rad_s):
@@ -190,6 +211,7 @@ class Plant:
         plant.machine = replace(self.machine, speed_rad_s=float(speed_rad_s))
         plant.radial = replace(self.radial, speed_rad_s=float(speed_rad_s))
         plant._responses = {}
+        plant._coupled_from = None
         return plant
 
     def cached(self, key, compute):
@@ -292,7 +314,7 @@ class Plant:
     def radial_frequency_response(self, frequency_hz):
         """Radial plant P(jw), array (n_freq, 4, 4) [m/A]; rows outputs, columns inputs (DX, DY, NX, NY)."""
         frequency_hz = np.asarray(frequency_hz, dtype=float)
-        response = self.cached(("radial", frequency_hz.tobytes()), lambda: self.radial.frequency_response(frequency_hz))
+        response = self.cached(("radial", frequency_hz.tobytes()), lambda: self._structural_response(frequency_hz))
         axes = list(RADIAL_AXES)
         inp = self._effect_matrices(self.input_effects, frequency_hz, axes)
         out = self._effect_matrices(self.output_effects, frequency_hz, axes)
@@ -301,6 +323,100 @@ class Plant:
         if out is not None:
             response = out @ response
         return response
+
+    def _structural_response(self, frequency_hz):
+        """The structural FRF (n_freq, 4, 4): of the modal model, or coupled from another plant's receptances."""
+        if self._coupled_from is None:
+            return self.radial.frequency_response(frequency_hz)
+        base = self._coupled_from
+        sensors = self.radial.output_matrix[:, : base.radial.mass.shape[0]]  # on the modal coordinates (not housings)
+        return base.coupled_response(frequency_hz, self.current_stiffness, self.position_stiffness, self.machine.foundation,
+                                     None if np.array_equal(sensors, base.radial.output_matrix) else sensors)
+
+    def receptances(self, frequency_hz, sensor_matrix=None):
+        """Receptances of the structure with its bearings (their negative stiffness included) [m/N].
+
+        Parameters
+        ----------
+        frequency_hz : array_like
+        sensor_matrix : array (4, n), optional
+            Other sensor shapes in this plant's modal coordinates (sensors moved
+            along the rotor); default its own.
+
+        Returns
+        -------
+        sensor, actuator : ndarray (n_freq, 4, 4)
+            Displacement at each radial axis' sensor and at its actuator per
+            unit force at each axis' actuator (columns); ``sensor * ki`` is the
+            structural FRF.
+        """
+        frequency_hz = np.asarray(frequency_hz, dtype=float)
+        own = sensor_matrix is None
+        rows = np.vstack([self.radial.output_matrix if own else np.asarray(sensor_matrix, dtype=float),
+                          self.actuator_shape.T])
+
+        def compute():
+            unit_forces = self.cached("unit_forces", lambda: replace(self.radial, input_matrix=self.actuator_shape))
+            response = unit_forces.frequency_response(frequency_hz, rows)
+            return response[:, :4], response[:, 4:]
+
+        # kept for the plant's own sensors only (moved ones: one FRF per trial, kept by the plant that asks)
+        return self.cached(("receptances", frequency_hz.tobytes()), compute) if own else compute()
+
+    def coupled_response(self, frequency_hz, current_stiffness, position_stiffness, foundation=None, sensor_matrix=None):
+        """Structural FRF (n_freq, 4, 4) [m/A] of this plant's rotor on other bearing coefficients, with other sensor
+        positions and, with a ``foundation``, on housings: coupled through the bearings from this plant's
+        `receptances` (substructuring, no new eigen-solution; what the diagnosis' ``actuator_coefficients``,
+        ``noncollocation`` and ``foundation_mode`` candidates cost).
+
+        A change ``d`` of the bearings' negative stiffness ``kx`` is a rank-4 change of
+        the dynamic stiffness, ``Z' = Z - B_a d B_a^T`` (thesis eq. 2.10-2.11), so
+        (Woodbury) ``R' = R + R d (1 - R_a d)^-1 R_a`` at the sensors and the actuators
+        alike.  The housing of axis ``k`` (bearing on the ``foundation``) moves by
+        ``u_k``; the bearing's force ``ki i_k + kx (x_k - u_k)`` acts on rotor and
+        housing alike and the sensor measures ``x_k - u_k``.  With
+        ``z = m (w_h^2 - w^2) + j w c`` each housing's dynamic stiffness::
+
+            [z - kx - kx R_a kx]_JJ u_J = -[(1 + kx R_a) ki i]_J
+            y = R_s (ki i - kx u) - u
+
+        Equal to the modal model's FRF with those bearings and housing
+        coordinates (`Plant` with ``actuator_coefficients``, ``foundation_mode``), to
+        rounding.
+
+        Parameters
+        ----------
+        frequency_hz : array_like
+        current_stiffness, position_stiffness : array_like (4,)
+            The bearings' ``ki`` [N/A] and ``kx`` [N/m] per radial axis.
+        foundation : ambid.machine.Foundation, optional
+        sensor_matrix : array (4, n), optional
+            The sensors' shapes in this plant's modal coordinates (`receptances`).
+        """
+        if self.machine.foundation is not None:
+            raise ModelError("coupled_response: this plant's housings are already on a foundation")
+        sensor, actuator = self.receptances(frequency_hz, sensor_matrix)
+        ki, kx = np.asarray(current_stiffness, dtype=float), np.asarray(position_stiffness, dtype=float)
+        change = kx - self.position_stiffness
+        if np.any(change != 0):
+            # R d (1 - R_a d)^-1 R_a, at the sensors and the actuators
+            inverse = np.linalg.solve(np.eye(4) - actuator * change, actuator)
+            sensor = sensor + (sensor * change) @ inverse
+            actuator = actuator + (actuator * change) @ inverse
+        forced = sensor * ki
+        on = [k for k, axis in enumerate(RADIAL_AXES)
+              if foundation is not None and AXIS_LOCATION[axis][0] in foundation.bearings]
+        if not on:
+            return forced
+        w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)
+        w_h = 2 * np.pi * foundation.frequency_hz
+        housing = foundation.mass_kg * (w_h**2 - w**2) + 2j * foundation.damping_ratio * foundation.mass_kg * w_h * w
+        kx_on = kx[on]
+        dynamic = housing[:, None, None] * np.eye(len(on)) - np.diag(kx_on) - kx_on[:, None] * actuator[:, on][:, :, on] * kx_on
+        load = (np.eye(4)[on] + kx_on[:, None] * actuator[:, on, :]) * ki  # [(1 + kx R_a) ki]_J
+        housing_motion = -np.linalg.solve(dynamic, load)  # u_J per unit current
+        moved = sensor[:, :, on] * kx_on + np.eye(4)[:, on]  # R_s kx + 1 on the columns of J
+        return forced - moved @ housing_motion
 
     @cached_property
     def axial_stiffness(self):
