@@ -68,8 +68,8 @@ from .compare import channel_family, model_response
 from .effects import EFFECTS
 from .errors import AmbidError, ConfigError, ModelError
 from .machine import ALL_AXES
-from .plant import COUPLED_EFFECTS
 from .floor import band_labels, frequency_bands
+from .plant import COUPLED_EFFECTS
 
 __all__ = ["DiagnoseError", "FreeParameter", "Candidate", "candidate_space", "FittedCandidate", "JointFit", "Diagnosis",
            "DiagnoseSettings", "diagnose", "joint_refit", "effect_label", "JOINT_COLUMNS", "misfit", "misfit_cells",

@@ -380,9 +380,9 @@ class Plant:
             [z - kx - kx R_a kx]_JJ u_J = -[(1 + kx R_a) ki i]_J
             y = R_s (ki i - kx u) - u
 
-        Equal to the modal model's FRF with those bearings and housing
-        coordinates (`Plant` with ``actuator_coefficients``, ``foundation_mode``), to
-        rounding.
+        Equal to the modal model's FRF with those bearings, sensors and housing
+        coordinates (`Plant` with ``actuator_coefficients``, ``noncollocation``,
+        ``foundation_mode``), to rounding.
 
         Parameters
         ----------
@@ -397,15 +397,16 @@ class Plant:
             raise ModelError("coupled_response: this plant's housings are already on a foundation")
         sensor, actuator = self.receptances(frequency_hz, sensor_matrix)
         ki, kx = np.asarray(current_stiffness, dtype=float), np.asarray(position_stiffness, dtype=float)
-        change = kx - self.position_stiffness
-        if np.any(change != 0):
-            # R d (1 - R_a d)^-1 R_a, at the sensors and the actuators
-            inverse = np.linalg.solve(np.eye(4) - actuator * change, actuator)
-            sensor = sensor + (sensor * change) @ inverse
-            actuator = actuator + (actuator * change) @ inverse
-        forced = sensor * ki
         on = [k for k, axis in enumerate(RADIAL_AXES)
               if foundation is not None and AXIS_LOCATION[axis][0] in foundation.bearings]
+        change = kx - self.position_stiffness
+        if np.any(change != 0):
+            # R d (1 - R_a d)^-1 R_a, at the sensors and (for the housings) at the actuators
+            inverse = np.linalg.solve(np.eye(4) - actuator * change, actuator)
+            sensor = sensor + (sensor * change) @ inverse
+            if on:
+                actuator = actuator + (actuator * change) @ inverse
+        forced = sensor * ki
         if not on:
             return forced
         w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)
