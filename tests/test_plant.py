@@ -7,7 +7,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from ambid.effects import effect_from_config
-from ambid.errors import ConfigError
+from ambid.errors import ConfigError, ModelError
 from ambid.loop import stability_summary, transfer_functions
 from ambid.machine import AXIS_LOCATION, RADIAL_AXES, machine_from_config
 from ambid.plant import Plant, damping_ratio
@@ -106,6 +106,19 @@ class TestModalReduction:
         # and the ordinary path of a plant built from scratch gives the same
         assert_allclose(Plant(machine.with_effects([*machine.effects, *added])).radial_frequency_response(frequency), modal,
                         rtol=1e-12, atol=0)
+
+    def test_coupling_only_where_it_holds(self, hs_machine):
+        """Not on top of housings already there, not for a rotor change, not spinning up: the modal model then."""
+        from ambid.effects import EFFECTS
+
+        base = Plant(hs_machine)
+        housed = base.with_structure_effects([EFFECTS["foundation_mode"](frequency_hz=300.0, mass_kg=20.0)])
+        assert housed._coupled_from is base
+        assert housed.with_structure_effects([EFFECTS["actuator_coefficients"]()])._coupled_from is None
+        assert base.with_structure_effects([EFFECTS["element_stiffness"](tag="motor", scale=0.9)])._coupled_from is None
+        assert housed.at_speed(1000.0)._coupled_from is None
+        with pytest.raises(ModelError, match="already on a foundation"):
+            housed.coupled_response([100.0], housed.current_stiffness, housed.position_stiffness)
 
     def test_more_modes_converge(self, hs_machine):
         frequency = np.linspace(1, 750, 50)
