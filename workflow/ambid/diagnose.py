@@ -450,7 +450,8 @@ class _Evaluator:
         self.cells = cells
         self.values = np.concatenate([values for _, values, _ in measured.values()])
         self.std = np.concatenate([std for _, _, std in measured.values()])
-        self.relative = self.std / np.maximum(np.abs(self.values), 1e-300)
+        with np.errstate(over="ignore"):  # a value at zero against its uncertainty: infinite, the robust weight 0
+            self.relative = self.std / np.maximum(np.abs(self.values), 1e-300)
         self.evaluations = 0
         self.structures = {}  # plants by their structure effects (`plant_with_effects`)
 
