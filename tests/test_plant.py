@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from ambid.effects import effect_from_config
+from ambid.effects import EFFECTS, effect_from_config
 from ambid.errors import ConfigError, ModelError
 from ambid.loop import stability_summary, transfer_functions
 from ambid.machine import AXIS_LOCATION, RADIAL_AXES, machine_from_config
@@ -92,8 +92,6 @@ class TestModalReduction:
         """The diagnosis' actuator, sensor-position and housing candidates take their FRF from the plant without them
         (Woodbury on the bearings' kx, its eigenvectors at the moved sensors, the housings' Schur complement): it must be
         the modal model's with those effects, to rounding."""
-        from ambid.effects import EFFECTS
-
         machine = request.getfixturevalue(machine_fixture)
         base = Plant(machine)
         added = [EFFECTS[name](**parameters) for name, parameters in effects]
@@ -109,8 +107,6 @@ class TestModalReduction:
 
     def test_coupling_only_where_it_holds(self, hs_machine):
         """Not on top of housings already there, not for a rotor change, not spinning up: the modal model then."""
-        from ambid.effects import EFFECTS
-
         base = Plant(hs_machine)
         housed = base.with_structure_effects([EFFECTS["foundation_mode"](frequency_hz=300.0, mass_kg=20.0)])
         assert housed._coupled_from is base
