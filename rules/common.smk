@@ -228,7 +228,7 @@ def update_inputs(wildcards):
     inputs = {
         "features": f"results/{wildcards.machine}/fit/{wildcards.run}/features.parquet",
         "frf": f"results/{wildcards.machine}/frf/{wildcards.run}/frf.parquet",
-        "machine": entry["model"],
+        "machine": machine_model_file(wildcards),
     }
     if entry.get("operating_point"):
         inputs["operating_point"] = operating_point_file(wildcards.machine)
@@ -238,7 +238,7 @@ def update_inputs(wildcards):
 def variant_inputs(wildcards):
     """Machine file, the calibration's operating point and the updates the variant takes."""
     entry = config["machines"][wildcards.machine]
-    inputs = {"machine": entry["model"]}
+    inputs = {"machine": machine_model_file(wildcards)}
     if entry.get("operating_point"):
         inputs["operating_point"] = operating_point_file(wildcards.machine)
     inputs["updates"] = [

@@ -505,15 +505,19 @@ def estimator_bias(estimator_plant, plant, grids, measured, fit_settings):
             estimate = found[found["kind"] == kind] if not found.empty else found
             if truth.empty or estimate.empty:
                 continue
-            reference = truth.iloc[int(np.argmin(np.abs(truth["frequency_hz"].to_numpy() - row["frequency_hz"])))]
-            frequencies = estimate["frequency_hz"].to_numpy()
-            nearest = estimate.iloc[int(np.argmin(np.abs(frequencies - reference["frequency_hz"])))]
-            back = truth.iloc[int(np.argmin(np.abs(truth["frequency_hz"].to_numpy() - nearest["frequency_hz"])))]
+            reference = _nearest_root(truth, row["frequency_hz"])
+            nearest = _nearest_root(estimate, reference["frequency_hz"])
+            back = _nearest_root(truth, nearest["frequency_hz"])
             if (back["frequency_hz"] == reference["frequency_hz"]
                     and abs(nearest["frequency_hz"] / reference["frequency_hz"] - 1) <= BIAS_MATCH):
                 out.loc[index] = (nearest["frequency_hz"] - reference["frequency_hz"],
                                   nearest["damping_ratio"] - reference["damping_ratio"])
     return out
+
+
+def _nearest_root(roots, frequency_hz):
+    """The row of ``roots`` (feature rows) whose frequency is nearest ``frequency_hz``."""
+    return roots.iloc[int(np.argmin(np.abs(roots["frequency_hz"].to_numpy() - frequency_hz)))]
 
 
 def bias_at_values(machine_config, problem, frf_table, fit_settings, name="machine"):
