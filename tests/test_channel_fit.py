@@ -45,18 +45,20 @@ class TestOutputErrorFit:
     def test_unbiased_under_noise_and_its_uncertainty_is_honest(self):
         truth = truth_channel()
         g0 = truth.frequency_response(F)
+        (constant,) = truth.modal_constants()
         errors, stds = [], []
         for seed in range(20):
             fit = fit_channel(F, noisy(g0, 0.03, seed), std=0.03 * np.abs(g0))
             resonance, anti = feature(fit, "resonance"), feature(fit, "anti_resonance")
             errors.append([resonance["damping_ratio"] / 0.01 - 1, anti["damping_ratio"] / 0.008 - 1,
-                           anti["frequency_hz"] / 480.0 - 1])
-            stds.append([resonance["damping_std"] / 0.01, anti["damping_std"] / 0.008, anti["frequency_std_hz"] / 480.0])
+                           anti["frequency_hz"] / 480.0 - 1, np.log(resonance["modal_constant"] / constant)])
+            stds.append([resonance["damping_std"] / 0.01, anti["damping_std"] / 0.008, anti["frequency_std_hz"] / 480.0,
+                         resonance["modal_constant_std"]])
             assert fit.cost == pytest.approx(1.0, abs=0.3)  # chi-square per degree of freedom
         errors, stds = np.array(errors), np.array(stds)
         assert np.all(np.abs(errors.mean(axis=0)) < 3 * errors.std(axis=0) / np.sqrt(len(errors)) + 0.003)
-        # the reported standard deviations (resonance damping, anti-resonance damping and frequency)
-        # match the scatter over seeds within 40 %
+        # the reported standard deviations (resonance damping, anti-resonance damping and frequency, the modal
+        # constant's relative one) match the scatter over seeds within 40 %
         assert_allclose(errors.std(axis=0), np.median(stds, axis=0), rtol=0.4)
 
     def test_modal_constant_is_the_residue_and_its_sign_tells_the_shape(self):

@@ -822,12 +822,37 @@ def _most_persistent(diagram, candidates_hz, count):
     return candidates_hz[keep]
 
 
+def _modal_constant_std(result, omega, covariance):
+    """Relative standard uncertainty of each flexible mode's modal constant (`ChannelModel.modal_constants`).
+
+    The delta method on the refinement's covariance, with ``d log|constant| / d theta`` by central differences in
+    the scaled parameters (the constant depends on every factor of the rational part: the gain, the other modes,
+    the zeros).  Relative, so a ratio of two channels' constants has the quadrature sum as its relative uncertainty.
+    """
+    solution, layout, sign = result
+    theta = solution.x
+    if layout.n_modes == 0:
+        return np.empty(0)
+    step = 1e-6 * np.maximum(np.abs(theta), 1.0)
+    gradient = np.empty((layout.n_modes, theta.size))
+    for k in range(theta.size):
+        up, down = theta.copy(), theta.copy()
+        up[k] += step[k]
+        down[k] -= step[k]
+        with np.errstate(divide="ignore"):
+            gradient[:, k] = (np.log(np.abs(_to_model(up, layout, omega, sign).modal_constants()))
+                              - np.log(np.abs(_to_model(down, layout, omega, sign).modal_constants()))) / (2 * step[k])
+    variance = np.einsum("mi,ij,mj->m", gradient, covariance, gradient)
+    return np.where(np.isfinite(variance), np.sqrt(np.maximum(variance, 0.0)), np.inf)
+
+
 def _features(model, result, omega, band_hz):
     """classify_poles rows of the model with linearized standard uncertainties of the flexible modes."""
     rows = classify_poles(model.poles, model.zeros, band_hz)
     layout = result[1]
     covariance = _covariance(result)
     q_index = 1 + layout.n_rigid
+    constant_std = _modal_constant_std(result, omega, covariance)
     for m, (w, zeta, constant) in enumerate(zip(model.mode_rad_s, model.mode_damping, model.modal_constants())):
         i_w, i_z = q_index + m, q_index + layout.n_modes + m
         for row in rows:
@@ -835,6 +860,7 @@ def _features(model, result, omega, band_hz):
                 row["frequency_std_hz"] = float(w / (2 * np.pi) * np.sqrt(max(covariance[i_w, i_w], 0.0)))
                 row["damping_std"] = float(np.sqrt(max(covariance[i_z, i_z], 0.0)))
                 row["modal_constant"] = float(constant)
+                row["modal_constant_std"] = float(constant_std[m])
     # complex zero factors x^2 + c1 x + c0 (x = s / omega): f = omega sqrt(c0) / 2 pi, zeta = c1 / (2 sqrt(c0))
     c_index = q_index + 2 * layout.n_modes
     for m, (c1, c0) in enumerate(model.zero_factors):
@@ -965,7 +991,7 @@ def feature_rows(channel_fit, output_axis, input_axis, estimator, flag="", band_
                      "kind": row["kind"], "number": row["number"], "frequency_hz": row["frequency_hz"],
                      "damping_ratio": row["damping_ratio"], "frequency_std_hz": row.get("frequency_std_hz", np.nan),
                      "damping_std": row.get("damping_std", np.nan), "modal_constant": row.get("modal_constant", np.nan),
-                     "flag": flag or overdamped})
+                     "modal_constant_std": row.get("modal_constant_std", np.nan), "flag": flag or overdamped})
     return rows
 
 

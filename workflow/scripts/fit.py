@@ -46,7 +46,8 @@ for output, input_axis in select_channels(settings["channels"]):
     for row in classify_poles(reference.poles, reference.zeros, (frequency.min(), frequency.max())):
         if row["kind"] != "stable_rigid":
             features.append({"output": output, "input": input_axis, "estimator": "thesis", **row,
-                             "frequency_std_hz": np.nan, "damping_std": np.nan, "modal_constant": np.nan, "flag": ""})
+                             "frequency_std_hz": np.nan, "damping_std": np.nan, "modal_constant": np.nan,
+                             "modal_constant_std": np.nan, "flag": ""})
     diagrams[label], selected[label] = result.stabilization, result.selected_hz
     panels.append((label, frequency, measured, std))
     fitted.append({"fit (output error)": result.model.frequency_response(frequency, known),
@@ -57,7 +58,7 @@ if not models:
 features = pd.DataFrame(features)
 write_parquet(features, snakemake.output.features, kind="fit_features",
               units={"frequency_hz": "Hz", "damping_ratio": "-", "frequency_std_hz": "Hz", "damping_std": "-", "number": "-",
-                     "modal_constant": "m/(A s^2)"},
+                     "modal_constant": "m/(A s^2)", "modal_constant_std": "-"},
               metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run, "estimator": estimator})
 write_tsv(features, snakemake.output.table)
 write_parquet(pd.DataFrame(models), snakemake.output.models, kind="fit_models",
