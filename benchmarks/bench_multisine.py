@@ -300,6 +300,20 @@ def machine_benchmark(machine, seeds, stepped_seeds):
     report_update("the truth's exact features, one modulus per tag (against the mean of the truth's)", *exact)
     report_update("rig data, one modulus per tag (against the truth's exact features' fit)",
                   *update(machine, model, ms["features"], per_element=False, truth=exact[1].values, table=ms["table"]))
+    # every seed: how many moduli the rig data determine, their error against the truth and against the stated std
+    counts, largest, sigmas = [], [], []
+    for r in results["multisine"]:
+        problem, result, rows, _, truth = update(machine, model, r["features"], table=r["table"])
+        stiffness = [k for k, v in enumerate(problem.variables) if v.kind == "stiffness"]
+        determined = [k for k in stiffness if rows[k]["determined"]]
+        errors = np.array([result.values[k] / truth[k] - 1 for k in determined])
+        counts.append(len(determined))
+        largest.append(100 * np.max(np.abs(errors)) if determined else np.nan)
+        sigmas.append(np.max(np.abs(errors) / [rows[k]["std"] for k in determined]) if determined else np.nan)
+    print(f"   per element over {len(counts)} seed(s): moduli determined {counts} of {len(stiffness)}; largest error "
+          f"of a determined one [%] {np.array2string(np.array(largest), precision=2)} (within 2 %: "
+          f"{int(np.sum(np.array(largest) <= 2.0))} of {len(counts)}); in units of its stated std "
+          f"{np.array2string(np.array(sigmas), precision=2)}")
     print(f"   ({time.perf_counter() - t0:.0f} s)")
 
 

@@ -428,6 +428,7 @@ UPDATE_OUTPUTS = [
     "comparison.tsv",
     "variables.tsv",
     "correlation.tsv",
+    "mode_shapes.tsv",
     "history.parquet",
     "machine.yaml",
     "figures/bode_update.png",

@@ -9,6 +9,7 @@ rule update:
         comparison_table="results/{machine}/update/{run}/comparison.tsv",
         variables="results/{machine}/update/{run}/variables.tsv",
         correlation="results/{machine}/update/{run}/correlation.tsv",
+        mode_shapes="results/{machine}/update/{run}/mode_shapes.tsv",
         history="results/{machine}/update/{run}/history.parquet",
         machine="results/{machine}/update/{run}/machine.yaml",
         bode="results/{machine}/update/{run}/figures/bode_update.png",

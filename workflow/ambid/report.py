@@ -324,6 +324,23 @@ def _valley_text(variables):
         ". The data fix a combination of them, not each.")]
 
 
+def _mode_shape_text(path):
+    """Whether the update compared the mode shapes (`ambid.update.mode_shape_rows`), and how well they are matched."""
+    if not path.exists():  # results of an older workflow
+        return []
+    shapes = read_tsv(path)
+    if shapes.empty:
+        return [Text("Mode shapes: not compared (fewer than two modes in a plane, or `update.weights.mode_shape` 0); "
+                     "the update matched frequencies and damping ratios only.")]
+    modes = shapes.groupby(shapes["output"].str[1])["number"].nunique().max()
+    worst = shapes.loc[shapes["contrast"].abs().idxmax()]
+    return [Text(f"Mode shapes (README \"Rotor model update\"): {len(shapes)} modal constants of up to {modes} modes per "
+                 f"plane took part, as ratios free of the sensors' and actuators' gains; at the updated model their "
+                 f"chi-square is {(shapes['contrast'] ** 2).sum():.1f}, the largest contrast {worst['contrast']:+.2f} "
+                 f"standard uncertainties ({worst['output']}/{worst['input']}, mode {int(worst['number'])}) "
+                 "(`mode_shapes.tsv`).")]
+
+
 def update_caveat(undetermined, total):
     """What an updated-model number is worth when the data leave update variables undetermined (text after it)."""
     if total == 0 or undetermined == 0:
@@ -551,6 +568,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                      "updated values are not measurements (hatched in the figure below)." if undetermined else
                      f"All {len(variables)} update variables are determined by the data."),
                 *_valley_text(variables),
+                *_mode_shape_text(root / base / "mode_shapes.tsv"),
                 table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "
                                                "resolution; `determined` is False where the data cannot fix a value, "
                                                "`valley_shift` is how far a value moves (log of the factor) when the "

@@ -42,6 +42,7 @@ from .errors import AmbidError, ConfigError, settings_from_mapping
 from .frf import channel, radial_estimator
 from .machine import machine_from_config
 from .modal_features import LIGHT_DAMPING, ModalFeatureModel, design_variables, root_feature_derivatives, root_features
+from .mode_shapes import ModeShapeContrasts
 from .plant import Plant, damping_ratio
 
 __all__ = ["UpdateSettings", "UpdateError", "UpdateProblem", "UpdateResult", "measured_features", "reference_features",
@@ -73,12 +74,14 @@ class UpdateSettings:
     stiffness_bounds: tuple = (1e-3, 2.0)
     damping_bounds: tuple = (0.0, 0.2)
     weights: dict = field(default_factory=lambda: dict(resonance_frequency=1.0, anti_resonance_frequency=1.0,
-                                                       resonance_damping=1.0, anti_resonance_damping=1.0, damping=0.01))
-    feature_std_floor: dict = field(default_factory=lambda: dict(frequency=5e-4, damping=0.05))
+                                                       resonance_damping=1.0, anti_resonance_damping=1.0, damping=0.01,
+                                                       mode_shape=1.0))
+    feature_std_floor: dict = field(default_factory=lambda: dict(frequency=5e-4, damping=0.05, modal_constant=0.01))
     determined_std: float = 0.1
     regularization: float = 5e-4
     valley_step: float = 1.0
     estimator_bias: bool = True
+    weigh_by_uncertainty: bool = True
 
     @classmethod
     def from_config(cls, section, machine_section=None):
@@ -154,10 +157,11 @@ def measured_features(frame, channels, modes):
     rows = rows.sort_values(["output", "input", "root", "frequency_hz"]).copy()
     rows["number"] = rows.groupby(["output", "input", "root"]).cumcount() + 1
     rows = rows[rows["number"] <= modes]
-    if "modal_constant" not in rows:
-        rows["modal_constant"] = np.nan
+    for column in ("modal_constant", "modal_constant_std"):  # features of older fits have no constants' std
+        if column not in rows:
+            rows[column] = np.nan
     columns = ["output", "input", "root", "number", "frequency_hz", "damping_ratio", "frequency_std_hz", "damping_std",
-               "modal_constant"]
+               "modal_constant", "modal_constant_std"]
     if rows.empty:
         raise UpdateError(f"no lightly damped resonance or anti-resonance among the fitted channels {sorted(wanted)} "
                           "(flagged fits left out: see the fit's findings.tsv)")
@@ -233,8 +237,22 @@ class UpdateProblem:
         self.frequency = self.measured["frequency_hz"].to_numpy(float)
         self.damping = self.measured["damping_ratio"].to_numpy(float)
         self.groups = [(key, index.to_numpy()) for key, index in self.measured.groupby(["output", "input", "root"]).groups.items()]
+        if settings.weigh_by_uncertainty:
+            # a feature at its floor keeps its weight; one the fit places worse counts less, as in a chi2
+            floor = settings.feature_std_floor
+            sigma_f, sigma_d = _feature_sigmas(self)
+            self.frequency_weight = self.frequency_weight * floor["frequency"] * self.frequency / sigma_f
+            self.damping_weight = self.damping_weight * floor["damping"] * self.damping / sigma_d
         self.sign_penalty = sign_penalty
         self.constant_sign = np.nan_to_num(np.sign(self.measured["modal_constant"].to_numpy(float)))  # 0: unknown
+        # the mode shapes (`ambid.mode_shapes`): one standard uncertainty of a contrast weighs as much as one of a
+        # frequency at its floor; they take part where some plane has constants of two modes or more
+        self.mode_shapes = ModeShapeContrasts(self.measured, settings.feature_std_floor.get("modal_constant", 0.01))
+        numbers = self.measured["number"].to_numpy()[self.mode_shapes.rows]
+        several = any(np.unique(numbers[self.mode_shapes.planes == plane]).size > 1
+                      for plane in np.unique(self.mode_shapes.planes))
+        self.mode_shape_scale = (weights.get("mode_shape", 1.0) * settings.feature_std_floor["frequency"]
+                                 if several else 0.0)
         self.log_scaled = np.array([v.kind == "stiffness" for v in self.variables])
         self.lower = np.array([v.lower for v in self.variables])
         self.upper = np.array([v.upper for v in self.variables])
@@ -263,9 +281,15 @@ class UpdateProblem:
         d_frequency, d_damping : arrays (n_features, n_variables) or None
             Derivatives with respect to the design values.
         """
+        return self._predict(values, derivatives)[:4]
+
+    def _predict(self, values, derivatives=False):
+        """`predict`, and the model's `StructuralFeatures` with the pole index each measured pole is matched to
+        (-1 for zeros)."""
         features = self.model.evaluate(values, derivatives)
         n = len(self.measured)
         frequency, damping = np.empty(n), np.empty(n)
+        match = np.full(n, -1)
         d_frequency = np.empty((n, len(self.variables))) if derivatives else None
         d_damping = np.empty_like(d_frequency) if derivatives else None
         described = {}  # root set -> (frequency, damping): a plane's poles serve all its channels
@@ -293,21 +317,66 @@ class UpdateProblem:
                 rows, columns = scipy.optimize.linear_sum_assignment(cost)
                 matched = columns[np.argsort(rows)]
             frequency[index], damping[index] = f_model[matched], z_model[matched]
+            if root == "pole":
+                match[index] = matched
             if derivatives:
                 df, dz = root_feature_derivatives(roots[matched], derivative[matched])
                 d_frequency[index], d_damping[index] = df, dz
-        return frequency, damping, d_frequency, d_damping
+        return frequency, damping, d_frequency, d_damping, features, match
+
+    def mode_shape_residuals(self, values, features, match, derivatives=False):
+        """The modal constants' whitened contrasts (`ambid.mode_shapes.ModeShapeContrasts`) at ``values``.
+
+        ``features`` and ``match`` are `_predict`'s at the same values.  The derivatives are forward differences
+        (one model evaluation per variable, relative step 1e-6), each perturbed pole followed to its nearest.
+
+        Returns
+        -------
+        residual : array (n_constants,), empty when the contrasts take no part
+        jacobian : array (n_constants, n_variables) or None
+        """
+        shapes = self.mode_shapes
+        if self.mode_shape_scale == 0 or not len(shapes):
+            return np.empty(0), (np.empty((0, len(self.variables))) if derivatives else None)
+        modes = match[shapes.rows]
+        planes = [o[1].lower() for o in shapes.outputs]
+
+        def constants(evaluated, pole_index):
+            return np.array([evaluated.modal_constants[(o, i)][k] for o, i, k in zip(shapes.outputs, shapes.inputs,
+                                                                                     pole_index)])
+
+        model = constants(features, modes)
+        if not derivatives:
+            return shapes.residuals(model, modes)
+        values = np.asarray(values, dtype=float)
+        jacobian = np.empty((len(shapes), len(self.variables)))
+        base = np.array([features.poles[plane][k] for plane, k in zip(planes, modes)])
+        for k in range(len(self.variables)):
+            step = 1e-6 * max(abs(values[k]), 1e-3)
+            shifted = values.copy()
+            shifted[k] += step
+            moved = self.model.evaluate(shifted)
+            followed = [int(np.argmin(np.abs(moved.poles[plane] - pole))) for plane, pole in zip(planes, base)]
+            jacobian[:, k] = (constants(moved, followed) - model) / step
+        return shapes.residuals(model, modes, jacobian)
 
     def residuals(self, values, derivatives=False):
-        """Weighted relative errors (eq. 5.29-5.32 with the weights of eq. 5.33-5.35), signed; and d r / d values."""
-        frequency, damping, d_frequency, d_damping = self.predict(values, derivatives)
+        """Weighted relative errors (eq. 5.29-5.32 with the weights of eq. 5.33-5.35), signed; and d r / d values.
+
+        Followed, where they take part, by the modal constants' contrasts (`mode_shape_residuals`) times
+        ``weights["mode_shape"]`` and the frequency floor: beyond the thesis, the mode shapes at the bearings.
+        """
+        frequency, damping, d_frequency, d_damping, features, match = self._predict(values, derivatives)
+        shape, d_shape = self.mode_shape_residuals(values, features, match, derivatives)
         residual = np.concatenate([self.frequency_weight * (frequency - self.frequency) / self.frequency,
-                                   self.damping_weight * (damping - self.damping) / self.damping])
+                                   self.damping_weight * (damping - self.damping) / self.damping,
+                                   self.mode_shape_scale * shape])
         self.history.append((float(np.sum(np.abs(residual))), float(residual @ residual)))
         if not derivatives:
             return residual, None
         jacobian = np.vstack([(self.frequency_weight / self.frequency)[:, None] * d_frequency,
-                              (self.damping_weight / self.damping)[:, None] * d_damping])
+                              (self.damping_weight / self.damping)[:, None] * d_damping,
+                              self.mode_shape_scale * d_shape])
         return residual, jacobian
 
     def objective(self, values):
@@ -410,6 +479,25 @@ def nelder_mead_update(problem, start, max_evaluations=2500, max_iterations=1000
     return solution.x, len(problem.history) - before
 
 
+def _frequencies_then_shapes(optimizer, problem, start, max_evaluations):
+    """``optimizer`` on the features without the mode shapes' contrasts, then with them from where it ended.
+
+    The contrasts' log is steep where a model constant passes through zero (a node of the shape crossing a
+    bearing) between a start and the solution; from the frequencies' solution the shapes only choose along what
+    the frequencies leave free.  Returns the values and both stages' evaluations.
+    """
+    scale = problem.mode_shape_scale
+    if scale == 0:
+        return optimizer(problem, start, max_evaluations)
+    problem.mode_shape_scale = 0.0
+    try:
+        first, before = optimizer(problem, start, max_evaluations)
+    finally:
+        problem.mode_shape_scale = scale
+    values, after = optimizer(problem, first, max_evaluations)
+    return values, before + after
+
+
 def update_model(problem, settings, start=None):
     """Run the configured optimizer from the configured start and ``settings.starts - 1`` random starts.
 
@@ -426,7 +514,7 @@ def update_model(problem, settings, start=None):
     history, summary, outcomes = [], [], []
     for k, start in enumerate(starts):
         first = len(problem.history)
-        values, evaluations = optimizer(problem, start, settings.max_evaluations)
+        values, evaluations = _frequencies_then_shapes(optimizer, problem, start, settings.max_evaluations)
         trace = np.array(problem.history[first:]).reshape(-1, 2)
         residual, _ = problem.residuals(values)
         problem.history.pop()
@@ -609,17 +697,20 @@ def _feature_sigmas(problem):
 
 def _feature_chi2(problem, values):
     """Sum of the squared feature errors in units of `_feature_sigmas`."""
-    frequency, damping, _, _ = problem.predict(values)
+    frequency, damping, _, _, features, match = problem._predict(values)
+    shape, _ = problem.mode_shape_residuals(values, features, match)
     sigma_f, sigma_d = _feature_sigmas(problem)
-    return float(np.sum(((frequency - problem.frequency) / sigma_f) ** 2) + np.sum(((damping - problem.damping) / sigma_d) ** 2))
+    return float(np.sum(((frequency - problem.frequency) / sigma_f) ** 2) + np.sum(((damping - problem.damping) / sigma_d) ** 2)
+                 + shape @ shape)
 
 
 def identifiability(problem, values, valley=True, added_std=None):
     """Which design variables the measured features determine, and how well.
 
     The Jacobian of the features, each divided by its standard uncertainty
-    (`_feature_sigmas`), with respect to the relative change of each variable,
-    is decomposed by SVD.  Directions with a standard uncertainty below
+    (`_feature_sigmas`), and of the modal constants' whitened contrasts where
+    they take part (`UpdateProblem.mode_shape_residuals`), with respect to the
+    relative change of each variable, is decomposed by SVD.  Directions with a standard uncertainty below
     ``settings.determined_std`` are determined.
 
     That is a statement about the neighbourhood of ``values``.  Where the
@@ -659,10 +750,11 @@ def identifiability(problem, values, valley=True, added_std=None):
         (refits the valley check ran).
     """
     settings = problem.settings
-    frequency, damping, d_frequency, d_damping = problem.predict(values, derivatives=True)
+    frequency, damping, d_frequency, d_damping, features, match = problem._predict(values, derivatives=True)
+    _, d_shape = problem.mode_shape_residuals(values, features, match, derivatives=True)
     sigma_f, sigma_d = _feature_sigmas(problem)
     scale = np.maximum(np.abs(values), np.where(problem.log_scaled, 0.0, 1e-3))  # relative change of each variable
-    jacobian = np.vstack([d_frequency / sigma_f[:, None], d_damping / sigma_d[:, None]]) * scale[None, :]
+    jacobian = np.vstack([d_frequency / sigma_f[:, None], d_damping / sigma_d[:, None], d_shape]) * scale[None, :]
     _, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
     determined = singular > 1.0 / settings.determined_std
     basis = vt[determined].T
@@ -729,6 +821,34 @@ def _valley_shifts(problem, values, locally, residuals, resolution):
             break
     del problem.history[history:]  # the probes are not part of the update's history
     return shift, moved_by, probes
+
+
+def mode_shape_rows(problem, values):
+    """The modal constants the update compared (`UpdateProblem.mode_shape_residuals`) at ``values``.
+
+    Returns
+    -------
+    rows : list of dict
+        Per constant: ``output, input, number, frequency_hz``, the measured ``modal_constant`` and its relative
+        ``sigma``, the matched model mode's ``model_constant`` and the whitened ``contrast`` (empty when the
+        contrasts take no part: one mode, or ``weights.mode_shape`` 0).
+    summary : dict
+        ``constants``, ``contrasts`` (constants less the offsets fitted out: the chi-square's degrees of freedom
+        before the design variables), ``chi2``.
+    """
+    shapes = problem.mode_shapes
+    if problem.mode_shape_scale == 0 or not len(shapes):
+        return [], {"constants": 0, "contrasts": 0, "chi2": 0.0}
+    _, _, _, _, features, match = problem._predict(values)
+    residual, _ = problem.mode_shape_residuals(values, features, match)
+    modes = match[shapes.rows]
+    measured = problem.measured.iloc[shapes.rows]
+    rows = [{"output": o, "input": i, "number": int(n), "frequency_hz": float(f), "modal_constant": float(c),
+             "sigma": float(sigma), "model_constant": float(features.modal_constants[(o, i)][k]), "contrast": float(r)}
+            for o, i, n, f, c, sigma, k, r in zip(shapes.outputs, shapes.inputs, measured["number"], measured["frequency_hz"],
+                                                  measured["modal_constant"], shapes.sigma, modes, residual)]
+    contrasts = int(round(np.trace(shapes.projection(modes))))
+    return rows, {"constants": len(rows), "contrasts": contrasts, "chi2": float(residual @ residual)}
 
 
 def comparison_rows(problem, original, updated):

@@ -10,7 +10,7 @@ from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.plots import bode_measured, save_figure, update_convergence, youngs_modulus
 from ambid.update import (UpdateSettings, bias_at_values, comparison_rows, debiased_update, identifiability,
-                          update_channels, update_model, update_problem, updated_machine_config)
+                          mode_shape_rows, update_channels, update_model, update_problem, updated_machine_config)
 from ambid.variants import variant_config
 
 log = rule_log(snakemake.log[0], "update")
@@ -47,6 +47,11 @@ log.info("identifiability: %d of %d variable directions determined; singular val
          np.array2string(summary["singular_values"], precision=3))
 
 # tables: the thesis' feature comparison (Tables 5.2/5.3, 6.4/6.5) and the design variables
+shape_rows, shapes = mode_shape_rows(problem, result.values)
+log.info("mode shapes: %d modal constants, %d gain-free contrasts, chi2 %.3g at the result", shapes["constants"],
+         shapes["contrasts"], shapes["chi2"])
+write_tsv(pd.DataFrame(shape_rows, columns=["output", "input", "number", "frequency_hz", "modal_constant", "sigma",
+                                            "model_constant", "contrast"]), snakemake.output.mode_shapes)
 comparison = pd.DataFrame(comparison_rows(problem, problem.start, result.values))
 write_parquet(comparison, snakemake.output.comparison, kind="update_comparison",
               units={"measured": "Hz or -", "measured_std": "Hz or -", "estimator_bias": "Hz or -", "original": "Hz or -",
