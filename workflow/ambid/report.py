@@ -330,13 +330,13 @@ def _mode_shape_text(path):
         return []
     shapes = read_tsv(path)
     if shapes.empty:
-        return [Text("Mode shapes: not compared (fewer than two modes in a plane, or `update.weights.mode_shape` 0); "
-                     "the update matched frequencies and damping ratios only.")]
+        return [Text("Mode shapes in the update: not compared (fewer than two modes in a plane, or "
+                     "`update.weights.mode_shape` 0); the update matched frequencies and damping ratios only.")]
     modes = shapes.groupby(shapes["output"].str[1])["number"].nunique().max()
     worst = shapes.loc[shapes["contrast"].abs().idxmax()]
-    return [Text(f"Mode shapes (README \"Rotor model update\"): {len(shapes)} modal constants of up to {modes} modes per "
-                 f"plane took part, as ratios free of the sensors' and actuators' gains; at the updated model their "
-                 f"chi-square is {(shapes['contrast'] ** 2).sum():.1f}, the largest contrast {worst['contrast']:+.2f} "
+    return [Text(f"Mode shapes in the update (README \"Rotor model update\"): {len(shapes)} modal constants of up to "
+                 f"{modes} modes per plane took part, as ratios free of the sensors' and actuators' gains; at the updated "
+                 f"model their chi-square is {(shapes['contrast'] ** 2).sum():.1f}, the largest contrast {worst['contrast']:+.2f} "
                  f"standard uncertainties ({worst['output']}/{worst['input']}, mode {int(worst['number'])}) "
                  "(`mode_shapes.tsv`).")]
 
