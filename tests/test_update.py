@@ -106,6 +106,23 @@ def test_mode_shapes_determine_what_the_frequencies_leave_free(demo_machine, the
     assert shapes["chi2"] < 1e-3
 
 
+def test_features_the_model_cannot_match_scale_the_uncertainties(demo_machine, thesis_reference):
+    """Anti-resonances 1 % above what any set of moduli gives (a model missing something): the chi-square per degree
+    of freedom says so, and every uncertainty is scaled by its root; features the model matches leave them as they are."""
+    features = features_of(thesis_reference, 3000.0)
+    summaries = []
+    for shift in (0.0, 0.01):
+        shifted = features.copy()
+        shifted.loc[shifted["root"] == "zero", "frequency_hz"] *= 1 + shift
+        problem = problem_for(demo_machine, shifted, tags=["design"], modes=3, damping="none", starts=2)
+        result = update_model(problem, problem.settings)
+        local, _, summary = identifiability(problem, result.values, valley=False)
+        summaries.append(summary)
+    exact, missed = summaries
+    assert exact["chi2"] < 1e-3 and exact["std_scale"] == 1.0
+    assert missed["chi2"] / missed["dof"] > 4 and missed["std_scale"] == pytest.approx(np.sqrt(missed["chi2"] / missed["dof"]))
+
+
 def test_a_feature_the_fit_places_badly_counts_less(hs_machine):
     """One anti-resonance 3 % off, with the fit's 3 % uncertainty on it (the others at the floor): weighted by their
     uncertainties the stacks come out right; with the thesis' equal weights it pulls them by percents."""

@@ -324,6 +324,21 @@ def _valley_text(variables):
         ". The data fix a combination of them, not each.")]
 
 
+def _feature_fit_text(variables):
+    """How well the updated model matches the features it was fitted to (`ambid.update.identifiability`'s chi2)."""
+    if "features_chi2_per_dof" not in variables or variables.empty:
+        return []
+    ratio, scale = float(variables["features_chi2_per_dof"].iloc[0]), float(variables["std_scale"].iloc[0])
+    if ratio <= 2.0:
+        return [Text(f"The updated model matches the features within their uncertainties (chi-square per degree of "
+                     f"freedom {ratio:.2f}).")]
+    return [Text(f"**The updated model does not match the features within their uncertainties** (chi-square per degree "
+                 f"of freedom {ratio:.3g}): the model lacks something the machine has (an effect, a stack's shear "
+                 f"stiffness, a joint), and its moduli are effective values of this model.  The uncertainties below are "
+                 f"scaled by {scale:.3g}; that covers a misfit spread like noise, not a wrong model (`comparison.tsv` "
+                 "shows which features are missed; the diagnosis names what is missing).")]
+
+
 def _mode_shape_text(path):
     """Whether the update compared the mode shapes (`ambid.update.mode_shape_rows`), and how well they are matched."""
     if not path.exists():  # results of an older workflow
@@ -567,6 +582,7 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                 Text(f"**{undetermined} of {len(variables)} update variables are not determined by the data**: their "
                      "updated values are not measurements (hatched in the figure below)." if undetermined else
                      f"All {len(variables)} update variables are determined by the data."),
+                *_feature_fit_text(variables),
                 *_valley_text(variables),
                 *_mode_shape_text(root / base / "mode_shapes.tsv"),
                 table(f"{base}/variables.tsv", "Design variables: start, updated value, standard uncertainty and "

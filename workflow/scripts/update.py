@@ -43,8 +43,9 @@ original_b = problem.objective(problem.start)
 log.info("B(e) %.4g -> %.4g after %d evaluations; starts:\n%s", original_b, result.objective,
          result.evaluations, result.starts.to_string(index=False))
 rows, correlation, summary = identifiability(problem, result.values, added_std=result.bias_spread)
-log.info("identifiability: %d of %d variable directions determined; singular values %s", summary["rank"], len(variables),
-         np.array2string(summary["singular_values"], precision=3))
+log.info("identifiability: %d of %d variable directions determined; singular values %s; features chi2 %.4g for %d "
+         "degrees of freedom (uncertainties scaled by %.3g)", summary["rank"], len(variables),
+         np.array2string(summary["singular_values"], precision=3), summary["chi2"], summary["dof"], summary["std_scale"])
 
 # tables: the thesis' feature comparison (Tables 5.2/5.3, 6.4/6.5) and the design variables
 shape_rows, shapes = mode_shape_rows(problem, result.values)
@@ -65,7 +66,8 @@ spread = np.full(len(variables), np.nan) if result.bias_spread is None else resu
 for variable, value, row, moved in zip(variables, result.values, rows, spread):
     entry = {"variable": variable.name, "kind": variable.kind, "tag": variable.tag,
              "elements": " ".join(str(e + 1) for e in variable.elements), "start": variable.start, "updated": value,
-             "lower": variable.lower, "upper": variable.upper, **row, "estimator_bias_spread": moved}
+             "lower": variable.lower, "upper": variable.upper, **row, "estimator_bias_spread": moved,
+             "features_chi2_per_dof": summary["chi2"] / summary["dof"], "std_scale": summary["std_scale"]}
     if variable.kind == "stiffness":
         modulus = structural.elements[variable.elements[0]].material.youngs_modulus_pa
         entry.update(youngs_modulus_start_pa=modulus, youngs_modulus_updated_pa=modulus * value)
