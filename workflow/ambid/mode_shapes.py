@@ -112,6 +112,11 @@ class ModeShapeContrasts:
             projection[np.ix_(index, index)] = np.eye(index.size) - basis @ basis.T
         return projection
 
+    def contrasts(self, modes):
+        """How many contrasts the constants give: their count less the independent offsets (the trace of
+        `projection`); the degrees of freedom they add to a chi2."""
+        return int(round(np.trace(self.projection(np.asarray(modes))))) if len(self) else 0
+
     def residuals(self, model_constant, modes, model_derivatives=None):
         """Whitened contrasts ``P (log|C_model| - log|C_measured|) / sigma`` (`soft_log`) and their derivatives.
 

@@ -214,6 +214,11 @@ def update_problem(machine, features, settings, channels=None):
 class UpdateProblem:
     """Residuals of thesis eq. 5.29-5.35 as functions of the design variables.
 
+    Beyond the thesis, with ``settings.weigh_by_uncertainty`` each feature's
+    weight is multiplied by its floor over its standard uncertainty
+    (`_feature_sigmas`), and the mode shapes' contrasts follow the features
+    (`mode_shape_residuals`).
+
     Parameters
     ----------
     model : ambid.modal_features.ModalFeatureModel
@@ -760,14 +765,13 @@ def identifiability(problem, values, valley=True, added_std=None):
         every standard uncertainty is scaled.
     """
     settings = problem.settings
-    frequency, damping, d_frequency, d_damping, features, match = problem._predict(values, derivatives=True)
+    _, _, d_frequency, d_damping, features, match = problem._predict(values, derivatives=True)
     shape, d_shape = problem.mode_shape_residuals(values, features, match, derivatives=True)
     sigma_f, sigma_d = _feature_sigmas(problem)
     # how well the features are matched: a model that cannot match them within their uncertainties (chi2 per degree
     # of freedom above 1) has every uncertainty scaled by the root of it (the Birge ratio)
-    chi2 = float(np.sum(((frequency - problem.frequency) / sigma_f) ** 2) + np.sum(((damping - problem.damping) / sigma_d) ** 2)
-                 + shape @ shape)
-    contrasts = int(round(np.trace(problem.mode_shapes.projection(match[problem.mode_shapes.rows])))) if shape.size else 0
+    chi2 = _feature_chi2(problem, values)
+    contrasts = problem.mode_shapes.contrasts(match[problem.mode_shapes.rows]) if shape.size else 0
     dof = max(1, 2 * len(problem.measured) + contrasts - len(values))
     std_scale = float(np.sqrt(max(1.0, chi2 / dof)))
     scale = np.maximum(np.abs(values), np.where(problem.log_scaled, 0.0, 1e-3))  # relative change of each variable
@@ -865,8 +869,7 @@ def mode_shape_rows(problem, values):
              "sigma": float(sigma), "model_constant": float(features.modal_constants[(o, i)][k]), "contrast": float(r)}
             for o, i, n, f, c, sigma, k, r in zip(shapes.outputs, shapes.inputs, measured["number"], measured["frequency_hz"],
                                                   measured["modal_constant"], shapes.sigma, modes, residual)]
-    contrasts = int(round(np.trace(shapes.projection(modes))))
-    return rows, {"constants": len(rows), "contrasts": contrasts, "chi2": float(residual @ residual)}
+    return rows, {"constants": len(rows), "contrasts": shapes.contrasts(modes), "chi2": float(residual @ residual)}
 
 
 def comparison_rows(problem, original, updated):
