@@ -589,7 +589,8 @@ def machine_report(machine, results_dir, calibration_runs=(), identification_run
                                                "resolution; `determined` is False where the data cannot fix a value, "
                                                "`valley_shift` is how far a value moves (log of the factor) when the "
                                                "undetermined modulus `valley_variable` is moved by up to a factor e "
-                                               "(the fit as good)."),
+                                               "(the fit as good); `std_scale` is the factor every uncertainty is "
+                                               "scaled by where the features are not matched within theirs."),
                 Figure(root / base / "figures/bode_update.png", caption("update_bode", run=run)),
                 Figure(root / base / "figures/youngs_modulus.png", caption("update_modulus", run=run)),
                 Figure(root / base / "figures/convergence.png", caption("update_convergence", run=run))]))
