@@ -132,7 +132,8 @@ def hs(config):
     features_path = ROOT / "results/hs_eden_like/fit/ident01/features.parquet"
     if not features_path.exists():
         print("   (making the fit stage's features of hs_eden_like ident01 with snakemake first)")
-        subprocess.run([sys.executable, "-m", "snakemake", "-c2", "--quiet", "all", str(features_path.relative_to(ROOT))],
+        # the target before --quiet, whose choices take every word after it
+        subprocess.run([sys.executable, "-m", "snakemake", "-c2", str(features_path.relative_to(ROOT)), "--quiet", "all"],
                        cwd=ROOT, check=True)
     features, _ = read_parquet(features_path, kind="fit_features")
     machine = machine_from_config(config["hs_eden_like"], name="hs_eden_like")

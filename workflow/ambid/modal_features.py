@@ -322,7 +322,7 @@ class ModalFeatureModel:
                             position_stiffness)
 
     # ---------------------------------------------------------- evaluation
-    def evaluate(self, values, derivatives=False):
+    def evaluate(self, values, derivatives=False, with_zeros=True):
         """Poles, zeros and modal constants for the design vector ``values``.
 
         Parameters
@@ -330,6 +330,8 @@ class ModalFeatureModel:
         values : array (n_variables,)
         derivatives : bool
             Also return ``d lambda / d e`` of every pole and zero.
+        with_zeros : bool
+            False: poles and modal constants only (half the cost; the zeros' tables are empty).
 
         Returns
         -------
@@ -351,7 +353,7 @@ class ModalFeatureModel:
             poles[plane], pole_derivatives[plane] = roots, d_roots
             for k, j in np.ndindex(2, 2):
                 constants[(axes[k], axes[j])] = plane_constants[k, j]
-            pairs = self.zero_pairs[plane]
+            pairs = self.zero_pairs[plane] if with_zeros else []
             for (k, j), roots, d_roots in zip(pairs, *_zeros(system, pairs, change, axes)):
                 zeros[(axes[k], axes[j])], zero_derivatives[(axes[k], axes[j])] = roots, d_roots
         if self.solve_planes == ["x"]:  # identical planes: the y plane's results are the x plane's

@@ -96,8 +96,15 @@ class ModeShapeContrasts:
     def projection(self, modes):
         """``I - Q Q^T`` per plane, Q an orthonormal basis of the whitened offsets (sensor, actuator, mode).
 
-        ``modes``: the model mode (pole index of the plane) each constant is matched to.
+        ``modes``: the model mode (pole index of the plane) each constant is matched to.  Kept for the last
+        matching (it changes only when the optimizer moves a mode past another).
         """
+        key = np.asarray(modes).tobytes()
+        if getattr(self, "_projection_key", None) != key:
+            self._projection_key, self._projection = key, self._projection_for(np.asarray(modes))
+        return self._projection
+
+    def _projection_for(self, modes):
         n = len(self)
         projection = np.zeros((n, n))
         weight = np.where(np.isfinite(self.sigma), 1.0 / self.sigma, 0.0)

@@ -360,7 +360,7 @@ class UpdateProblem:
             step = 1e-6 * max(abs(values[k]), 1e-3)
             shifted = values.copy()
             shifted[k] += step
-            moved = self.model.evaluate(shifted)
+            moved = self.model.evaluate(shifted, with_zeros=False)
             followed = [int(np.argmin(np.abs(moved.poles[plane] - pole))) for plane, pole in zip(planes, base)]
             jacobian[:, k] = (constants(moved, followed) - model) / step
         return shapes.residuals(model, modes, jacobian)
