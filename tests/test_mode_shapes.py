@@ -62,6 +62,10 @@ def test_uncertain_constants_count_less_and_a_zero_crossing_is_bounded():
     off[5] *= 1.2
     residual, _ = contrasts.residuals(off, MODES)
     assert residual @ residual < 0.3
+    # 12 constants of one plane less 5 independent offsets (2 sensors, 2 actuators, 3 modes, one shared twice)
+    assert contrasts.contrasts(MODES) == 7
+    table.loc[6, "modal_constant_std"] = np.inf  # a constant the fit cannot place: no contrast
+    assert ModeShapeContrasts(table, floor=0.01).contrasts(MODES) == 6
     through_zero = model.copy()
     through_zero[1] = 0.0
     residual, jacobian = contrasts.residuals(through_zero, MODES, np.eye(model.size))

@@ -75,6 +75,7 @@ class ModeShapeContrasts:
         # (a node of the shape crossing a bearing) costs a bounded amount
         self.softening = np.where(np.isfinite(self.sigma), self.sigma, 1.0) * np.abs(constant)
         self.log_constant = self.soft_log(constant)
+        self._projection_key, self._projection = None, None
 
     def soft_log(self, constant):
         """``log |C|`` where ``|C|`` is at least ``softening``; below, the log of ``(C^2 + softening^2) / (2 softening)``
@@ -100,7 +101,7 @@ class ModeShapeContrasts:
         matching (it changes only when the optimizer moves a mode past another).
         """
         key = np.asarray(modes).tobytes()
-        if getattr(self, "_projection_key", None) != key:
+        if self._projection_key != key:
             self._projection_key, self._projection = key, self._projection_for(np.asarray(modes))
         return self._projection
 
@@ -122,7 +123,10 @@ class ModeShapeContrasts:
     def contrasts(self, modes):
         """How many contrasts the constants give: their count less the independent offsets (the trace of
         `projection`); the degrees of freedom they add to a chi2."""
-        return int(round(np.trace(self.projection(np.asarray(modes))))) if len(self) else 0
+        if not len(self):
+            return 0
+        # a constant of infinite uncertainty keeps a 1 on the diagonal and carries nothing
+        return int(round(np.trace(self.projection(np.asarray(modes))))) - int(np.sum(~np.isfinite(self.sigma)))
 
     def residuals(self, model_constant, modes, model_derivatives=None):
         """Whitened contrasts ``P (log|C_model| - log|C_measured|) / sigma`` (`soft_log`) and their derivatives.
