@@ -330,8 +330,9 @@ def _feature_fit_text(variables):
         return []
     ratio, scale = float(variables["features_chi2_per_dof"].iloc[0]), float(variables["std_scale"].iloc[0])
     if ratio <= 2.0:
+        scaled = f"; the uncertainties below are scaled by its root, {scale:.3g}" if scale > 1 else ""
         return [Text(f"The updated model matches the features within their uncertainties (chi-square per degree of "
-                     f"freedom {ratio:.2f}).")]
+                     f"freedom {ratio:.2f}{scaled}).")]
     return [Text(f"**The updated model does not match the features within their uncertainties** (chi-square per degree "
                  f"of freedom {ratio:.3g}): the model lacks something the machine has (an effect, a stack's shear "
                  f"stiffness, a joint), and its moduli are effective values of this model.  The uncertainties below are "
