@@ -292,7 +292,8 @@ def machine_benchmark(machine, seeds, stepped_seeds):
                   f"median {100 * np.median(errors):.2f} %, p90 {100 * np.percentile(errors, 90):.2f} %")
     print("-- model update from the multisine FRF (3 modes, per-element moduli, seed 1):")
     t0 = time.perf_counter()
-    report_update("rig data", *update(machine, model, ms["features"], table=ms["table"]))
+    per_seed = [update(machine, model, r["features"], table=r["table"]) for r in results["multisine"]]
+    report_update("rig data", *per_seed[0])
     report_update("the truth's exact features", *update(machine, model, None, truth_rig=rig_model))
     # one modulus per tag against the one the truth's own features give: where the truth varies element by element
     # (demo20: 0.54 to 0.09 over elements 5-8) no single modulus is "the truth", and their mean is no comparator
@@ -302,8 +303,7 @@ def machine_benchmark(machine, seeds, stepped_seeds):
                   *update(machine, model, ms["features"], per_element=False, truth=exact[1].values, table=ms["table"]))
     # every seed: how many moduli the rig data determine, their error against the truth and against the stated std
     counts, largest, sigmas = [], [], []
-    for r in results["multisine"]:
-        problem, result, rows, _, truth = update(machine, model, r["features"], table=r["table"])
+    for problem, result, rows, _, truth in per_seed:
         stiffness = [k for k, v in enumerate(problem.variables) if v.kind == "stiffness"]
         determined = [k for k in stiffness if rows[k]["determined"]]
         errors = np.array([result.values[k] / truth[k] - 1 for k in determined])

@@ -68,6 +68,9 @@ class ModeShapeContrasts:
         self.outputs = measured["output"].to_numpy()[use]
         self.inputs = measured["input"].to_numpy()[use]
         self.planes = np.array([o[1] for o in self.outputs])
+        numbers = measured["number"].to_numpy()[use]
+        #: whether some plane has constants of two measured modes or more (else no contrast at all)
+        self.several_modes = any(np.unique(numbers[self.planes == plane]).size > 1 for plane in np.unique(self.planes))
         constant = constant[use]
         self.sigma = np.fmax(std[use], floor)
         self.sigma = np.where(np.isfinite(self.sigma), self.sigma, np.inf)

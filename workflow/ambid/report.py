@@ -326,8 +326,6 @@ def _valley_text(variables):
 
 def _feature_fit_text(variables):
     """How well the updated model matches the features it was fitted to (`ambid.update.identifiability`'s chi2)."""
-    if "features_chi2_per_dof" not in variables or variables.empty:
-        return []
     ratio, scale = float(variables["features_chi2_per_dof"].iloc[0]), float(variables["std_scale"].iloc[0])
     if ratio <= 2.0:
         scaled = f"; the uncertainties below are scaled by its root, {scale:.3g}" if scale > 1 else ""
@@ -342,8 +340,6 @@ def _feature_fit_text(variables):
 
 def _mode_shape_text(path):
     """Whether the update compared the mode shapes (`ambid.update.mode_shape_rows`), and how well they are matched."""
-    if not path.exists():  # results of an older workflow
-        return []
     shapes = read_tsv(path)
     if shapes.empty:
         return [Text("Mode shapes in the update: not compared (fewer than two modes in a plane, or "

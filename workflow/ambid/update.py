@@ -91,6 +91,10 @@ class UpdateSettings:
         """
         merged = {**(section or {}), **(machine_section or {})}
         settings = settings_from_mapping(cls, merged, "update")
+        # a config's weights and floors without the keys beyond the thesis (mode_shape, modal_constant) keep their defaults
+        defaults = cls()
+        settings = replace(settings, weights={**defaults.weights, **settings.weights},
+                           feature_std_floor={**defaults.feature_std_floor, **settings.feature_std_floor})
         if settings.optimizer not in ("least_squares", "nelder_mead"):
             raise ConfigError("update.optimizer", f"must be 'least_squares' or 'nelder_mead', not {settings.optimizer!r}")
         for key in ("modes", "starts"):
@@ -252,12 +256,9 @@ class UpdateProblem:
         self.constant_sign = np.nan_to_num(np.sign(self.measured["modal_constant"].to_numpy(float)))  # 0: unknown
         # the mode shapes (`ambid.mode_shapes`): one standard uncertainty of a contrast weighs as much as one of a
         # frequency at its floor; they take part where some plane has constants of two modes or more
-        self.mode_shapes = ModeShapeContrasts(self.measured, settings.feature_std_floor.get("modal_constant", 0.01))
-        numbers = self.measured["number"].to_numpy()[self.mode_shapes.rows]
-        several = any(np.unique(numbers[self.mode_shapes.planes == plane]).size > 1
-                      for plane in np.unique(self.mode_shapes.planes))
-        self.mode_shape_scale = (weights.get("mode_shape", 1.0) * settings.feature_std_floor["frequency"]
-                                 if several else 0.0)
+        self.mode_shapes = ModeShapeContrasts(self.measured, settings.feature_std_floor["modal_constant"])
+        self.mode_shape_scale = (weights["mode_shape"] * settings.feature_std_floor["frequency"]
+                                 if self.mode_shapes.several_modes else 0.0)
         self.log_scaled = np.array([v.kind == "stiffness" for v in self.variables])
         self.lower = np.array([v.lower for v in self.variables])
         self.upper = np.array([v.upper for v in self.variables])
