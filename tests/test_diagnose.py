@@ -12,6 +12,8 @@ this file runs one seed of it, on shorter grids from 5 Hz (`small_grid`).
 
 import functools
 import re
+import unittest.mock
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -20,7 +22,7 @@ import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
 from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, DiagnoseSettings, FreeParameter,
-                            _Cells, _Evaluator, _fit, _least_bic, _prune, bic_evidence, candidate_space, chance_limit,
+                            _Cells, _Evaluator, _fit, _least_bic, _prune, _weak_housing_start, bic_evidence, candidate_space, chance_limit,
                             diagnose, effect_label, joint_refit, misfit, misfit_cells, misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
@@ -339,6 +341,38 @@ def test_a_fit_through_no_change_keeps_a_jacobian():
     assert abs(np.exp(relative.x[0]) - 1) < 1e-6  # the old way: stuck at no change
     solution = scipy.optimize.least_squares(value, near_zero, jac=jacobian, bounds=(np.log(0.05), np.log(5.0)))
     assert np.exp(solution.x[0]) == pytest.approx(1.05, rel=1e-6)
+
+
+def test_a_weak_narrow_housing_mode_away_from_the_misfit_peaks_is_found_from_its_weak_limit():
+    """A 10 t frame's mode (zeta 0.005, 7.7 Hz wide at 770 Hz) halfway between two of the coarse scan's frequencies,
+    the misfit peaks not scanned (as where a larger misfit elsewhere takes them): the coarse scan alone ends in another
+    basin (at 5 kHz, chi2 1721); the weak limit's dense scan (`_weak_housing_start`) promises the chi2 the model gives at
+    its start (to 1 %), and the fit ends at the mode (chi2 1617 for 1600 points), its frequency to 0.1 % and its mass
+    to 10 %."""
+    config = load_machine_config("demo20")
+    config["frequency_grid"]["radial"]["points"] = 80
+    machine = machine_from_config(config)
+    housing = next(c for c in candidate_space(machine) if c.label == "foundation_mode")
+    scan = housing.free[0].grid()
+    frequency_hz = float(np.exp(0.5 * (scan[20] + scan[21])))
+    measured = synthetic_measurement(machine, [effect("foundation_mode", frequency_hz=frequency_hz, mass_kg=10000.0,
+                                                      damping_ratio=0.005)], seed=3)
+    blind = replace(housing, free=(replace(housing.free[0], at_misfit_peaks=False), *housing.free[1:]))
+    evaluator = _Evaluator(Plant(machine), measured, _Cells(measured))
+    nominal = evaluator.residual(())
+    start, promised = _weak_housing_start(evaluator, blind)
+    at_start = evaluator.residual((blind.build([p.from_search(v) for p, v in zip(blind.free, start)]),))
+    assert promised == pytest.approx(float(np.vdot(at_start, at_start).real), rel=0.01)
+    assert promised < float(np.vdot(nominal, nominal).real) - 100
+    with unittest.mock.patch("ambid.diagnose._weak_housing_start", return_value=None):
+        coarse = _fit(evaluator, blind)
+    found = _fit(evaluator, blind)
+    names = [p.name for p in blind.free]
+    assert abs(dict(zip(names, coarse.values))["frequency_hz"] / frequency_hz - 1) > 0.01
+    values = dict(zip(names, found.values))
+    assert values["frequency_hz"] == pytest.approx(frequency_hz, rel=1e-3)
+    assert values["mass_kg"] == pytest.approx(10000.0, rel=0.1)
+    assert found.chi2 < coarse.chi2 - 50 and found.chi2 < 1.05 * nominal.size and not found.at_bound
 
 
 def test_a_weak_narrow_housing_mode_between_scan_points_is_a_lead_where_the_misfit_peaks():

@@ -25,7 +25,9 @@ than its bandwidth still tells which way to go, where ``chi2`` is flat), local
 least squares on that objective from the best few scan minima, then bounded
 least squares on ``chi2`` from each; the best ``chi2`` wins.  A resonance
 narrower than the scan's steps (a heavy housing's mode, a few Hz wide) is also
-scanned at the frequencies where the model's misfit peaks (`misfit_peaks`).
+scanned at the frequencies where the model's misfit peaks (`misfit_peaks`), and a
+housing mode densely in its weak limit, where the misfit is quadratic in the
+housing's inverse mass (`_weak_housing_start`).
 
 **Significance.**  Candidates are ranked by the Bayesian information criterion
 of the complex Gaussian likelihood, ``BIC = 2 chi2 / c + k ln(2N)`` (``k``
@@ -82,6 +84,9 @@ INDISTINGUISHABLE_BIC = 10.0
 AT_BOUND = 1e-3
 #: Plants with other structure effects an evaluator keeps (`plant_with_effects`).
 STRUCTURES_KEPT = 8
+#: Damping ratios at which a housing mode's weak limit is scanned (`_weak_housing_start`); its frequency steps by the
+#: ratio, half the mode's half-power bandwidth ``2 zeta f``.  0.003: a welded steel frame; 0.3: a mode on rubber mounts.
+HOUSING_SCAN_DAMPING = (0.003, 0.01, 0.03, 0.1, 0.3)
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
 #: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
@@ -572,14 +577,22 @@ def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_eva
         origins = [np.array([g[i] for g, i in zip(grids, np.unravel_index(flat, shape))]) for flat in order]
     else:
         origins = [np.array([p.to_search(v) for p, v in zip(free, warm)])]
+    origins = [(x0, None) for x0 in origins]  # (start, chi2 it promises; None: refined on the robust objective first)
+    if candidate.effect == "foundation_mode":
+        weak = _weak_housing_start(evaluator, candidate, base)
+        if weak is not None:  # a chi2 optimum of the weak limit already: refined on chi2 alone, where it promises more
+            origins.append(weak)
     best = None
-    for x0 in origins:
+    for x0, promised in origins:
+        if promised is not None and best is not None and best[1] <= promised:
+            continue
         # evaluation budgets count the finite-difference Jacobians too (k + 1 evaluations per iteration)
-        fun, jac = _with_jacobian(robust, lower, upper)
-        rough = scipy.optimize.least_squares(fun, inside(x0), jac=jac, bounds=(lower, upper), x_scale=span / 10,
-                                             method="trf", max_nfev=8, xtol=1e-6, ftol=1e-8)
+        if promised is None:
+            fun, jac = _with_jacobian(robust, lower, upper)
+            x0 = scipy.optimize.least_squares(fun, inside(x0), jac=jac, bounds=(lower, upper), x_scale=span / 10,
+                                              method="trf", max_nfev=8, xtol=1e-6, ftol=1e-8).x
         fun, jac = _with_jacobian(chi, lower, upper)
-        fine = scipy.optimize.least_squares(fun, inside(rough.x), jac=jac, bounds=(lower, upper), x_scale=span / 10,
+        fine = scipy.optimize.least_squares(fun, inside(x0), jac=jac, bounds=(lower, upper), x_scale=span / 10,
                                             method="trf", max_nfev=max(5, max_evaluations // (len(free) + 1)),
                                             xtol=1e-8, ftol=1e-10)
         chi2 = float(np.sum(fine.fun**2))
@@ -592,6 +605,70 @@ def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_eva
     at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
     return FittedCandidate(candidate, values, std, chi2, residual=residual, at_bound=at_bound,
                            evaluations=evaluator.evaluations - count)
+
+
+def _weak_housing_start(evaluator, candidate, base=()):
+    """The housing mode that best fits the misfit in its weak limit, in the candidate's search coordinates.
+
+    A housing of dynamic stiffness ``z = m (w_h^2 - w^2 + 2j zeta w_h w)`` far stiffer than its bearing changes
+    the model's response by ``B(w) / z`` to first order in its compliance (each bearing's housing alike,
+    `ambid.plant.Plant.coupled_response`), ``B`` being the plant's own: one evaluation on housings 1e6 times
+    stiffer than the bearings gives it.  The misfit is then quadratic in ``1 / m``, its best value closed-form for
+    every frequency and damping ratio, so both are scanned densely (`HOUSING_SCAN_DAMPING`, frequency steps of the
+    damping ratio): a narrow weak mode between the coarse scan's frequencies (a few Hz wide at 500 Hz, its
+    misfit's basin as narrow) is not stepped over.  ``1 / m`` is kept within the candidate's mass range and where
+    the first-order change stays within a tenth of the response.
+
+    Returns
+    -------
+    (numpy.ndarray, float) or None
+        The start and the ``chi2`` the weak limit promises there; None where no housing mode lowers ``chi2``.
+    """
+    names = [p.name for p in candidate.free]
+    frequency, mass, damping = (candidate.free[names.index(n)] for n in ("frequency_hz", "mass_kg", "damping_ratio"))
+    w = 2 * np.pi * np.concatenate([np.asarray(f, dtype=float) for f, _, _ in evaluator.measured.values()])
+    w_ref = 2 * np.pi * 1e4
+    mass_ref = 1e6 * max(float(np.max(np.abs(evaluator.plant.position_stiffness))), 1.0) / w_ref**2
+    reference = EFFECTS["foundation_mode"](mass_kg=mass_ref, frequency_hz=1e4, damping_ratio=1.0)
+    try:
+        predicted = evaluator.predicted(base)
+        residual = (predicted - evaluator.values) / evaluator.std
+        shape = (evaluator.residual((*base, reference)) - residual) * mass_ref * (w_ref**2 - w**2 + 2j * w_ref * w)
+    except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
+        return None
+    power = np.abs(shape) ** 2  # |B|^2 / sigma^2
+    if not np.any(power > 0):
+        return None
+    relative = np.where(power > 0, np.abs(shape) * evaluator.std / np.maximum(np.abs(predicted), 1e-300), 0.0)  # |B/G|
+    # the compliance depends on the frequency alone: the sums over points taken per measured frequency first
+    w, at = np.unique(w, return_inverse=True)
+    projection = np.conj(shape) * residual
+    projection = np.bincount(at, projection.real, w.size) + 1j * np.bincount(at, projection.imag, w.size)
+    power = np.bincount(at, power, w.size)
+    largest_relative = np.zeros(w.size)
+    np.maximum.at(largest_relative, at, relative)
+    best = (0.0, None)
+    for zeta in HOUSING_SCAN_DAMPING:
+        if not damping.lower <= zeta <= damping.upper:
+            continue
+        w_h = 2 * np.pi * np.exp(np.arange(np.log(frequency.lower), np.log(frequency.upper), zeta))
+        for chunk in np.array_split(w_h, max(1, w_h.size * w.size // 500_000)):
+            compliance = 1.0 / (chunk[:, None] ** 2 - w**2 + 2j * zeta * chunk[:, None] * w)  # 1 / z at m = 1
+            linear = (np.conj(compliance) @ projection).real  # chi2 = chi2_0 + 2 a linear + a^2 quadratic, a = 1 / m
+            quadratic = np.abs(compliance) ** 2 @ power
+            with np.errstate(divide="ignore"):
+                weak = 0.1 / np.max(np.abs(compliance) * largest_relative, axis=1)
+            largest = np.minimum(1.0 / mass.lower, weak)
+            inverse_mass = np.clip(-linear / np.maximum(quadratic, 1e-300), 1.0 / mass.upper, largest)
+            gain = np.where(largest > 1.0 / mass.upper, -(2 * inverse_mass * linear + inverse_mass**2 * quadratic), 0)
+            k = int(np.argmax(gain))
+            if gain[k] > best[0]:
+                best = (float(gain[k]), (chunk[k] / (2 * np.pi), 1.0 / inverse_mass[k], zeta))
+    if best[1] is None:
+        return None
+    values = dict(zip(("frequency_hz", "mass_kg", "damping_ratio"), best[1]))
+    start = np.array([p.to_search(values[p.name]) for p in candidate.free])
+    return start, float(np.vdot(residual, residual).real) - best[0]
 
 
 def _with_jacobian(fun, lower, upper):
