@@ -22,8 +22,9 @@ import yaml
 
 from ambid.compare import channel_errors, measured_channels, model_response, summarize
 from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, DiagnoseSettings, FreeParameter,
-                            _Cells, _Evaluator, _fit, _least_bic, _prune, _weak_housing_start, bic_evidence, candidate_space, chance_limit,
-                            diagnose, effect_label, joint_refit, misfit, misfit_cells, misfit_peaks, plant_with_effects)
+                            _Cells, _Evaluator, _fit, _least_bic, _prune, _weak_housing_start, bic_evidence,
+                            candidate_space, chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells,
+                            misfit_peaks, plant_with_effects)
 from ambid.diagnosis_report import AMPLITUDE_ERROR_ALIKE, diagnosis_findings, diagnosis_report, effects_config_lines
 from ambid.effects import EFFECTS, effect_from_config
 from ambid.excitation import settings_from_config
