@@ -87,6 +87,10 @@ STRUCTURES_KEPT = 8
 #: Damping ratios at which a housing mode's weak limit is scanned (`_weak_housing_start`); its frequency steps by the
 #: ratio, half the mode's half-power bandwidth ``2 zeta f``.  0.003: a welded steel frame; 0.3: a mode on rubber mounts.
 HOUSING_SCAN_DAMPING = (0.003, 0.01, 0.03, 0.1, 0.3)
+#: Largest share of a cluster's residual the fit is taken to absorb in `_cluster_variances` (its ``(1 - P_c)^(-1/2)``
+#: at most 3.2): a cluster that alone determines a direction would otherwise make it as uncertain as the arithmetic
+#: allows.
+LEVERAGE_CAP = 0.9
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
 #: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
@@ -601,7 +605,7 @@ def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_eva
     x, chi2, jacobian = best
     values = tuple(p.from_search(v) for p, v in zip(free, x))
     residual = evaluator.residual(effects(x))
-    std = _standard_deviations(free, x, jacobian, chi2, points, residual)
+    std = _standard_deviations(free, x, jacobian, chi2, points, residual, evaluator.cells.channel_index)
     at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
     return FittedCandidate(candidate, values, std, chi2, residual=residual, at_bound=at_bound,
                            evaluations=evaluator.evaluations - count)
@@ -718,35 +722,92 @@ def _deflation(chi2, points, k, residual=None):
     return max(1.0, chi2 / max(points - k, 1)) * (1.0 if residual is None else correlation_time(residual))
 
 
-def _covariance(jacobian, chi2, points, k, prior=None, residual=None):
+def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=None):
     """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
 
     Each real component of the residual has variance 1/2 at the floor; the
     data's information is deflated by the misfit left, ``c = max(1, chi2 /
     (N - k))``, times the residual's `correlation_time` along frequency (given
     ``residual``); ``prior`` is the diagonal precision a prior adds (in the
-    residual's units, not deflated).
+    residual's units, not deflated).  With ``clusters`` (each point's, `_Cells.channel_index`), each
+    variance is at least the cluster-robust one (`_cluster_variances`): the floor's systematic part,
+    shared by a channel's points in a band, is not independent from point to point.
     """
     information = jacobian.T @ jacobian / _deflation(chi2, points, k, residual)
     if prior is not None:
         information = information + np.diag(prior)
-    return 0.5 * np.linalg.pinv(information)
+    covariance = 0.5 * np.linalg.pinv(information)
+    if clusters is not None and residual is not None:
+        # each variance at least the cluster-robust one, the correlations the model's
+        model = np.maximum(np.diag(covariance), 1e-300)
+        scale = np.sqrt(np.maximum(_cluster_variances(jacobian, residual, clusters, prior), model) / model)
+        covariance = covariance * np.outer(scale, scale)
+    return covariance
 
 
-def _data_standard_deviations(jacobian, chi2, points, k, residual=None):
+def _cluster_variances(jacobian, residual, clusters, prior=None):
+    """Variances in search coordinates from the cluster-robust sandwich with the CR2 adjustment (Bell & McCaffrey 2002).
+
+    The floor's systematic part (`ambid.floor`) is smooth over a band and shared by a channel's points: unlike noise
+    it does not average out over them, and the fit absorbs part of it, so a sandwich on the points (stop 42's
+    Newey-West: 0.74-1.12 of the plain standard deviation where the errors were 3 of it) does not show it.  Here the
+    scores are summed per cluster, a channel's points in one band, each cluster's residual first scaled by
+    ``(1 - P_c)^(-1/2)`` (``P_c = J_c H^-1 J_c^T``, the share of it the fit absorbs; its eigenvalues capped at
+    `LEVERAGE_CAP`): ``H^-1 (sum_c J_c^T A_c r_c r_c^T A_c J_c) H^-1``, ``H = J^T J`` plus the prior's ``prior / 2``.
+    With independent residuals of variance 1/2 per component it equals `_covariance`'s ``0.5 H^-1`` on average.
+    (The delete-one-cluster jackknife, CR3, tried at stop 46, made the hs_eden_like actuator coefficients ten times
+    too uncertain: each axis's ``ki`` and ``kx`` are told apart by a few clusters, and leaving one out frees them.)
+
+    Parameters
+    ----------
+    jacobian : array (2 N, k)
+        Of the real and imaginary parts of the residual, in search coordinates.
+    residual : array (N,) complex
+        At the solution, in units of the floor.
+    clusters : array (N,) int
+        Each point's cluster: a channel's points in one band of its family (`_Cells.channel_index`).
+    prior : array (k,), optional
+        `_covariance`'s diagonal precision of a prior.
+    """
+    stacked = np.concatenate([residual.real, residual.imag])
+    index = np.concatenate([clusters, clusters])
+    hessian = jacobian.T @ jacobian
+    if prior is not None:
+        hessian = hessian + np.diag(np.asarray(prior) / 2)
+    bread = np.linalg.pinv(hessian, hermitian=True)
+    eigenvalues, vectors = np.linalg.eigh(bread)
+    root = (vectors * np.sqrt(np.maximum(eigenvalues, 0.0))) @ vectors.T  # H^(-1/2)
+    order = np.argsort(index, kind="stable")
+    jacobian, stacked = jacobian[order], stacked[order]
+    scores = []
+    for part in np.split(np.arange(order.size), np.flatnonzero(np.diff(index[order])) + 1):
+        block = jacobian[part]
+        # P_c = B B^T with B = J_c H^(-1/2): its eigenvectors U and eigenvalues s^2 from the thin SVD of B (rank <= k)
+        u, singular, _ = np.linalg.svd(block @ root, full_matrices=False)
+        r = stacked[part]
+        adjusted = r + u @ ((1.0 / np.sqrt(1.0 - np.clip(singular**2, 0.0, LEVERAGE_CAP)) - 1.0) * (u.T @ r))
+        scores.append(block.T @ adjusted)
+    scores = np.array(scores) @ bread  # each cluster's shift of the solution
+    return np.sum(scores**2, axis=0)
+
+
+def _data_standard_deviations(jacobian, chi2, points, k, residual=None, clusters=None):
     """Standard deviations in search coordinates from the data alone (`_covariance` without a prior).
 
     A parameter with a share in a direction the data do not see gets a standard deviation as large
     as the arithmetic allows (information eigenvalues floored at 1e-14 of the largest), where a
-    pseudo-inverse would give it none.
+    pseudo-inverse would give it none.  With ``clusters``, each at least the cluster-robust one (`_cluster_variances`).
     """
     eigenvalues, vectors = np.linalg.eigh(jacobian.T @ jacobian / _deflation(chi2, points, k, residual))
     floor = 1e-14 * max(float(eigenvalues.max(initial=0.0)), 1e-300)
-    return np.sqrt(0.5 * (vectors**2) @ (1.0 / np.maximum(eigenvalues, floor)))
+    std = np.sqrt(0.5 * (vectors**2) @ (1.0 / np.maximum(eigenvalues, floor)))
+    if clusters is not None and residual is not None:
+        std = np.maximum(std, np.sqrt(_cluster_variances(jacobian, residual, clusters)))
+    return std
 
 
-def _standard_deviations(free, x, jacobian, chi2, points, residual=None):
-    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free), residual=residual)
+def _standard_deviations(free, x, jacobian, chi2, points, residual=None, clusters=None):
+    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free), residual=residual, clusters=clusters)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     return tuple(float(s * p.from_search(v)) if p.log else float(s) for p, s, v in zip(free, std_search, x))
 
@@ -1067,10 +1128,11 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     chi2 = float(np.vdot(fitted, fitted).real)
     at_solution = np.concatenate([fitted.real, fitted.imag])
     jacobian = _forward_jacobian(data, x, at_solution, np.arange(len(parameters)), lower, upper)
+    clusters = evaluator.cells.channel_index
     covariance = _covariance(jacobian, chi2, points, len(parameters),
-                             prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted)
+                             prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted, clusters=clusters)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted)
+    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters)
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
     k = 0
