@@ -102,7 +102,7 @@ demo20's sensor shifts (3.0-3.3 std) in sample, and the cross coupling (11.7 and
 std) out of sample, each within 5 % all the same.  With each stated standard deviation at least the cluster-robust
 one (`ambid.diagnose._cluster_variances`, CR2, a channel's points in a band one cluster): the same headline in and
 out of sample; median 0.77 and 0.82, within 2 std 83 and 81 %, the largest 3.9 (an eddy-current corner) and 7.3 (a
-stiffness scale 0.07 % off at 0.009 %).  About 15 minutes.
+stiffness scale 0.07 % off at 0.009 %).  About 7-8 minutes per suite with 2 workers.
 """
 
 import concurrent.futures
