@@ -170,6 +170,10 @@ def test_joint_refit_keeps_what_the_data_do_not_determine(demo):
     assert not row["determined"] and row["relative_std"] > 0.3
     assert row["data_relative_std"] >= row["relative_std"]  # "determined" asks the data alone, without the prior
     assert abs(np.log(row["value"] / 0.01)) < 2 * row["relative_std"]
+    # the posterior's: the precisions of the prior (width 1 on the log scale) and of the data add (measured 0.635
+    # against 0.615; before stop 46 the prior counted twice, 0.52)
+    assert row["relative_std"] == pytest.approx((1 / DiagnoseSettings().prior_width**2
+                                                 + 1 / row["data_relative_std"]**2) ** -0.5, rel=0.05)
 
 
 def test_joint_refit_of_an_update_moves_along_what_the_data_determine(demo):

@@ -728,8 +728,9 @@ def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=N
     Each real component of the residual has variance 1/2 at the floor; the
     data's information is deflated by the misfit left, ``c = max(1, chi2 /
     (N - k))``, times the residual's `correlation_time` along frequency (given
-    ``residual``); ``prior`` is the diagonal precision a prior adds (in the
-    residual's units, not deflated).  With ``clusters`` (each point's, `_Cells.channel_index`), each
+    ``residual``); ``prior`` is the diagonal ``P`` a prior adds to ``J^T J`` (not deflated): a prior
+    residual ``s (x - x0)`` beside the data's gives ``P = s^2``, a prior of standard deviation ``w``
+    ``P = 1 / (2 w^2)``.  With ``clusters`` (each point's, `_Cells.channel_index`), each
     variance is at least the cluster-robust one (`_cluster_variances`): the floor's systematic part,
     shared by a channel's points in a band, is not independent from point to point.
     """
@@ -753,7 +754,7 @@ def _cluster_variances(jacobian, residual, clusters, prior=None):
     Newey-West: 0.74-1.12 of the plain standard deviation where the errors were 3 of it) does not show it.  Here the
     scores are summed per cluster, a channel's points in one band, each cluster's residual first scaled by
     ``(1 - P_c)^(-1/2)`` (``P_c = J_c H^-1 J_c^T``, the share of it the fit absorbs; its eigenvalues capped at
-    `LEVERAGE_CAP`): ``H^-1 (sum_c J_c^T A_c r_c r_c^T A_c J_c) H^-1``, ``H = J^T J`` plus the prior's ``prior / 2``.
+    `LEVERAGE_CAP`): ``H^-1 (sum_c J_c^T A_c r_c r_c^T A_c J_c) H^-1``, ``H = J^T J`` plus the ``prior``.
     With independent residuals of variance 1/2 per component it equals `_covariance`'s ``0.5 H^-1`` on average.
     (The delete-one-cluster jackknife, CR3, tried at stop 46, made the hs_eden_like actuator coefficients ten times
     too uncertain: each axis's ``ki`` and ``kx`` are told apart by a few clusters, and leaving one out frees them.)
@@ -773,7 +774,7 @@ def _cluster_variances(jacobian, residual, clusters, prior=None):
     index = np.concatenate([clusters, clusters])
     hessian = jacobian.T @ jacobian
     if prior is not None:
-        hessian = hessian + np.diag(np.asarray(prior) / 2)
+        hessian = hessian + np.diag(prior)
     bread = np.linalg.pinv(hessian, hermitian=True)
     eigenvalues, vectors = np.linalg.eigh(bread)
     root = (vectors * np.sqrt(np.maximum(eigenvalues, 0.0))) @ vectors.T  # H^(-1/2)
@@ -1130,7 +1131,7 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     jacobian = _forward_jacobian(data, x, at_solution, np.arange(len(parameters)), lower, upper)
     clusters = evaluator.cells.channel_index
     covariance = _covariance(jacobian, chi2, points, len(parameters),
-                             prior=np.where(prior, 2 * prior_scale**2, 0.0), residual=fitted, clusters=clusters)
+                             prior=np.where(prior, prior_scale**2, 0.0), residual=fitted, clusters=clusters)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters)
     scale = np.where(std_search > 0, std_search, 1.0)
