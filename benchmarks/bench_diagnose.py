@@ -298,7 +298,7 @@ def suite(seeds, radial_points, workers):
         values = np.array([v for v, _ in z])
         print(f"  stated standard deviations against the errors, {len(z)} parameters of the top-1 cases: |error| / std "
               f"median {np.median(values):.2f} (0.67 if honest), within 2 std {np.mean(values <= 2):.0%} (95 %); beyond "
-              f"3 std:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in z if v > 3))
+              f"3 std, largest first:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in reversed(z) if v > 3))
     print(f"final misfit at the floor (no cell above it after the joint refit): {sum(s['at_floor'] for s in library)} "
           f"of {len(library)}")
     outside = by_kind("outside")

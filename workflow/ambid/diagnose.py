@@ -314,6 +314,7 @@ class _Cells:
         # each channel's points in its family's bands (`channel_evidence`)
         channel = [f"{k}:{b}" for k, idx in enumerate(index) for b in idx]
         _, self.channel_index = np.unique(channel, return_inverse=True)
+        self.channel = np.repeat(np.arange(len(index)), [idx.size for idx in index])  # each point's channel
         self._in_row = self.row_index >= 0
         self.rows = np.array([name[2] != "all" for name in names])
         self.points = self._count(np.ones(self.index.size))
@@ -605,7 +606,7 @@ def _fit(evaluator, candidate, base=(), max_evaluations=DiagnoseSettings.max_eva
     x, chi2, jacobian = best
     values = tuple(p.from_search(v) for p, v in zip(free, x))
     residual = evaluator.residual(effects(x))
-    std = _standard_deviations(free, x, jacobian, chi2, points, residual, evaluator.cells.channel_index)
+    std = _standard_deviations(free, x, jacobian, chi2, points, residual, evaluator.cells)
     at_bound = tuple(p.name for p, v, lo, hi, s in zip(free, x, lower, upper, span) if min(v - lo, hi - v) <= AT_BOUND * s)
     return FittedCandidate(candidate, values, std, chi2, residual=residual, at_bound=at_bound,
                            evaluations=evaluator.evaluations - count)
@@ -700,15 +701,32 @@ def _with_jacobian(fun, lower, upper):
     return value, jacobian
 
 
-def correlation_time(residual):
+def correlation_time(residual, channels=None):
     """Integrated correlation time ``(1 + rho) / (1 - rho)`` of a residual along frequency (1 for white noise).
 
     ``rho = Re sum r_k conj(r_(k+1)) / sum |r_k|^2`` is its lag-one correlation
     (an AR(1) model; clipped to [0, 0.96], so at most 49): what the floor leaves
     is partly systematic, smooth in frequency, so neighbouring points carry less
     than independent information.
+
+    With ``channels`` (each point's channel, `_Cells.channel`; a channel's points
+    in frequency order), each channel's own, per point.  The systematic part
+    lives where the model and the machine differ most, the direct channels near
+    their modes, which also carry most of what a parameter is fitted from: one
+    correlation time over all channels dilutes theirs with the white cross and
+    coil-current channels (the suite's demo20 2027 sensor shift: 2.6-3.8 on the
+    four direct position channels, 1.4 over all, the non-drive-end shift 3.3 of
+    its standard deviations off).
     """
     r = np.asarray(residual, dtype=complex).ravel()
+    if channels is not None:
+        channels = np.asarray(channels)
+        size = int(channels.max(initial=-1)) + 1
+        same = channels[:-1] == channels[1:]
+        lagged = np.bincount(channels[:-1][same], (r[:-1] * np.conj(r[1:])).real[same], minlength=size)
+        power = np.bincount(channels, np.abs(r) ** 2, minlength=size)
+        rho = np.clip(np.divide(lagged, power, out=np.zeros(size), where=power > 0), 0.0, 0.96)
+        return ((1 + rho) / (1 - rho))[channels]
     power = float(np.vdot(r, r).real)
     if r.size < 3 or power == 0:
         return 1.0
@@ -716,25 +734,31 @@ def correlation_time(residual):
     return (1 + rho) / (1 - rho)
 
 
-def _deflation(chi2, points, k, residual=None):
-    """The factor the data's information is divided by: the misfit left per degree of freedom (at least 1) times the
-    residual's `correlation_time` along frequency."""
-    return max(1.0, chi2 / max(points - k, 1)) * (1.0 if residual is None else correlation_time(residual))
+def _information(jacobian, chi2, points, k, residual=None, channels=None):
+    """``J^T J`` deflated: divided by the misfit left per degree of freedom (at least 1) and by the residual's
+    `correlation_time` along frequency, each channel's rows by its own given ``channels``."""
+    dispersion = max(1.0, chi2 / max(points - k, 1))
+    if residual is None:
+        return jacobian.T @ jacobian / dispersion
+    time = correlation_time(residual, channels)
+    weights = np.tile(np.broadcast_to(time, (points,)), 2)  # the real parts' rows, then the imaginary parts'
+    return jacobian.T @ (jacobian / weights[:, None]) / dispersion
 
 
-def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=None):
+def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=None, channels=None):
     """Covariance in search coordinates: ``0.5 (J^T J / c + P)^-1``.
 
     Each real component of the residual has variance 1/2 at the floor; the
     data's information is deflated by the misfit left, ``c = max(1, chi2 /
     (N - k))``, times the residual's `correlation_time` along frequency (given
-    ``residual``); ``prior`` is the diagonal ``P`` a prior adds to ``J^T J`` (not deflated): a prior
+    ``residual``; each channel's own given ``channels``, `_information`);
+    ``prior`` is the diagonal ``P`` a prior adds to ``J^T J`` (not deflated): a prior
     residual ``s (x - x0)`` beside the data's gives ``P = s^2``, a prior of standard deviation ``w``
     ``P = 1 / (2 w^2)``.  With ``clusters`` (each point's, `_Cells.channel_index`), each
     variance is at least the cluster-robust one (`_cluster_variances`): the floor's systematic part,
     shared by a channel's points in a band, is not independent from point to point.
     """
-    information = jacobian.T @ jacobian / _deflation(chi2, points, k, residual)
+    information = _information(jacobian, chi2, points, k, residual, channels)
     if prior is not None:
         information = information + np.diag(prior)
     covariance = 0.5 * np.linalg.pinv(information)
@@ -792,14 +816,14 @@ def _cluster_variances(jacobian, residual, clusters, prior=None):
     return np.sum(scores**2, axis=0)
 
 
-def _data_standard_deviations(jacobian, chi2, points, k, residual=None, clusters=None):
+def _data_standard_deviations(jacobian, chi2, points, k, residual=None, clusters=None, channels=None):
     """Standard deviations in search coordinates from the data alone (`_covariance` without a prior).
 
     A parameter with a share in a direction the data do not see gets a standard deviation as large
     as the arithmetic allows (information eigenvalues floored at 1e-14 of the largest), where a
     pseudo-inverse would give it none.  With ``clusters``, each at least the cluster-robust one (`_cluster_variances`).
     """
-    eigenvalues, vectors = np.linalg.eigh(jacobian.T @ jacobian / _deflation(chi2, points, k, residual))
+    eigenvalues, vectors = np.linalg.eigh(_information(jacobian, chi2, points, k, residual, channels))
     floor = 1e-14 * max(float(eigenvalues.max(initial=0.0)), 1e-300)
     std = np.sqrt(0.5 * (vectors**2) @ (1.0 / np.maximum(eigenvalues, floor)))
     if clusters is not None and residual is not None:
@@ -807,8 +831,10 @@ def _data_standard_deviations(jacobian, chi2, points, k, residual=None, clusters
     return std
 
 
-def _standard_deviations(free, x, jacobian, chi2, points, residual=None, clusters=None):
-    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free), residual=residual, clusters=clusters)
+def _standard_deviations(free, x, jacobian, chi2, points, residual=None, cells=None):
+    covariance = _covariance(jacobian[: 2 * points], chi2, points, len(free), residual=residual,
+                             clusters=None if cells is None else cells.channel_index,
+                             channels=None if cells is None else cells.channel)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     return tuple(float(s * p.from_search(v)) if p.log else float(s) for p, s, v in zip(free, std_search, x))
 
@@ -1129,11 +1155,11 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     chi2 = float(np.vdot(fitted, fitted).real)
     at_solution = np.concatenate([fitted.real, fitted.imag])
     jacobian = _forward_jacobian(data, x, at_solution, np.arange(len(parameters)), lower, upper)
-    clusters = evaluator.cells.channel_index
-    covariance = _covariance(jacobian, chi2, points, len(parameters),
-                             prior=np.where(prior, prior_scale**2, 0.0), residual=fitted, clusters=clusters)
+    clusters, channels = evaluator.cells.channel_index, evaluator.cells.channel
+    covariance = _covariance(jacobian, chi2, points, len(parameters), prior=np.where(prior, prior_scale**2, 0.0),
+                             residual=fitted, clusters=clusters, channels=channels)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters)
+    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters, channels)
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
     k = 0
