@@ -65,6 +65,7 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 import scipy.special
+import scipy.stats
 
 from .compare import channel_family, model_response
 from .effects import EFFECTS
@@ -91,6 +92,9 @@ HOUSING_SCAN_DAMPING = (0.003, 0.01, 0.03, 0.1, 0.3)
 #: at most 3.2): a cluster that alone determines a direction would otherwise make it as uncertain as the arithmetic
 #: allows.
 LEVERAGE_CAP = 0.9
+#: Consecutive points of a channel in one group of the model-form check (`_band_disagreement`): an eighth of an 80-point
+#: grid, so a systematic error that changes over the band shows as groups that disagree.
+FORM_GROUP_POINTS = 10
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
 #: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
@@ -816,6 +820,63 @@ def _cluster_variances(jacobian, residual, clusters, prior=None):
     return np.sum(scores**2, axis=0)
 
 
+def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
+    """Model-form variance of each parameter: how far the data's groups disagree about it beyond chance.
+
+    A systematic error that every channel shares is absorbed by the fit: a parameter the library's form describes
+    only roughly (the rig's eddy-current lag, eight pole-zero pairs against the library's half order; a cross
+    coupling whose off-diagonal FRF the stepped sine measures 3 % high at 190-300 Hz and right below 100 Hz) takes the
+    value that averages it, and no residual-based variance (`_cluster_variances`) sees that bias, since the fit leaves
+    each cluster's score about zero.  What the data do show is that parts of the band want different values.  Each
+    group, `FORM_GROUP_POINTS` consecutive points of a channel, gives a one-step estimate of each parameter with the
+    others held (its score over its information); Cochran's ``Q`` of these estimates about their mean is chi-square
+    with ``G - 1`` degrees of freedom when the model's form holds.  Where ``Q`` exceeds that with the chance ``tail``
+    (`CELL_TAIL` by default), the DerSimonian-Laird between-group variance ``t^2 = (Q - (G - 1)) / (S1 - S2 / S1)``
+    (``S1``, ``S2`` the sums of the groups' precisions and their squares) is the parameter's model-form variance: the
+    spread of the values the band's parts support, not divided by their number, since the bias that remains is their
+    common part, which the data cannot show.
+
+    Parameters
+    ----------
+    jacobian : array (2 N, k)
+        Of the real and imaginary parts of the residual, in search coordinates.
+    residual : array (N,) complex
+        At the solution, in units of the floor.
+    channels : array (N,) int
+        Each point's channel (`_Cells.channel`), its points in frequency order.
+    chi2, k : float, int
+        The misfit and the number of parameters: the information is deflated as `_information` does.
+
+    Returns
+    -------
+    array (k,)
+        Variances in search coordinates, zero where the groups agree within chance.
+    """
+    tail = CELL_TAIL if tail is None else tail
+    points = residual.size
+    channels = np.asarray(channels)
+    start = np.flatnonzero(np.r_[True, channels[1:] != channels[:-1]])
+    position = np.arange(points) - np.repeat(start, np.diff(np.r_[start, points]))
+    _, group = np.unique(channels * (points + 1) + position // FORM_GROUP_POINTS, return_inverse=True)
+    size = int(group.max()) + 1
+    deflation = max(1.0, chi2 / max(points - k, 1)) * np.tile(correlation_time(residual, channels), 2)
+    rows, stacked = np.tile(group, 2), np.concatenate([residual.real, residual.imag])
+    variances = np.zeros(jacobian.shape[1])
+    for j, column in enumerate(jacobian.T):
+        information = np.bincount(rows, column**2 / deflation, minlength=size)
+        score = np.bincount(rows, column * stacked / deflation, minlength=size)
+        seen = information > 1e-12 * information.max(initial=0.0)
+        if np.count_nonzero(seen) < 2:
+            continue
+        precision, estimate = 2 * information[seen], score[seen] / information[seen]
+        mean = np.sum(precision * estimate) / np.sum(precision)
+        q, dof = float(np.sum(precision * (estimate - mean) ** 2)), precision.size - 1
+        if q > scipy.stats.chi2.isf(tail, dof):
+            s1, s2 = np.sum(precision), np.sum(precision**2)
+            variances[j] = (q - dof) / (s1 - s2 / s1)
+    return variances
+
+
 def _data_standard_deviations(jacobian, chi2, points, k, residual=None, clusters=None, channels=None):
     """Standard deviations in search coordinates from the data alone (`_covariance` without a prior).
 
@@ -883,7 +944,7 @@ def _rank(fitted, chi2, residual, evaluator, settings):
 # ------------------------------------------------------------------------------------------ joint refit
 #: Columns of `JointFit.table`.
 JOINT_COLUMNS = ("parameter", "origin", "start", "value", "std", "relative_std", "data_relative_std", "determined",
-                 "at_bound")
+                 "at_bound", "form_std")
 
 
 @dataclass
@@ -894,8 +955,10 @@ class JointFit:
     (``new``: chosen by this diagnosis; ``variant``: already in the model), ``start``, ``value``,
     ``std``, ``relative_std`` (with the prior), ``data_relative_std`` (the data's alone: a variant's
     parameter the prior holds has a small ``relative_std`` all the same), ``determined`` (by the
-    data: ``data_relative_std`` below ``determined_std``), ``at_bound``; ``correlation`` is their correlation
-    matrix; ``effects`` the refitted new effects and ``machine`` the variant with every refitted value.
+    data: ``data_relative_std`` below ``determined_std``), ``at_bound``, ``form_std`` (the model-form part of
+    ``std``, `_band_disagreement`: how far the values the band's parts support spread beyond chance; 0 where they
+    agree); ``correlation`` is their correlation matrix; ``effects`` the refitted new effects and ``machine`` the
+    variant with every refitted value.
     """
 
     table: pd.DataFrame
@@ -1158,8 +1221,14 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     clusters, channels = evaluator.cells.channel_index, evaluator.cells.channel
     covariance = _covariance(jacobian, chi2, points, len(parameters), prior=np.where(prior, prior_scale**2, 0.0),
                              residual=fitted, clusters=clusters, channels=channels)
+    # the model's form: each variance plus the spread of the values the band's parts support beyond chance
+    form = _band_disagreement(jacobian, fitted, channels, chi2, len(parameters))
+    model = np.maximum(np.diag(covariance), 1e-300)
+    inflation = np.sqrt((model + form) / model)
+    covariance = covariance * np.outer(inflation, inflation)
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    data_std_search = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters, channels)
+    data_std_search = np.sqrt(_data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters,
+                                                        channels) ** 2 + form)
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
     k = 0
@@ -1169,11 +1238,13 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
             std = float(std_search[k] * value) if p.log else float(std_search[k])
             relative = float(std_search[k]) if p.log else (abs(std / value) if value != 0 else np.inf)
             data_relative = float(data_std_search[k]) if p.log else (abs(data_std_search[k] / value) if value != 0 else np.inf)
+            form_std = float(np.sqrt(form[k]) * (abs(value) if p.log else 1.0))
             rows.append({"parameter": parameter_label(effect, p),
                          "origin": origin, "start": p.from_search(x0[k]), "value": value, "std": std,
                          "relative_std": relative, "data_relative_std": data_relative,
                          "determined": bool(data_relative < settings.determined_std),
-                         "at_bound": bool(min(x[k] - lower[k], upper[k] - x[k]) <= AT_BOUND * span[k])})
+                         "at_bound": bool(min(x[k] - lower[k], upper[k] - x[k]) <= AT_BOUND * span[k]),
+                         "form_std": form_std})
             k += 1
     table = pd.DataFrame(rows, columns=list(JOINT_COLUMNS))
     correlation = pd.DataFrame(covariance / np.outer(scale, scale), index=table["parameter"], columns=table["parameter"])

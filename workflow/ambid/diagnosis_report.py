@@ -183,6 +183,12 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
                                    f"{row.parameter} is not determined by these data: {format_value(row.value, row.std)} "
                                    f"({100 * row.relative_std:.0f} % relative with the prior, "
                                    f"{100 * row.data_relative_std:.0f} % from the data alone)", row.data_relative_std))
+            if row.form_std > 0:
+                out.append(Finding(stage, "note", "model_form", row.parameter,
+                                   f"the parts of the band disagree about {row.parameter} beyond chance: its "
+                                   f"{format_value(row.value, row.std)} holds their spread, {row.form_std:.2g} (the "
+                                   "refitted model does not describe every part of the band alike: an effect still "
+                                   "missing, or a form the library lacks)", row.form_std))
     if diagnosis.retune is not None:
         for row in diagnosis.retune.itertuples():
             out.append(Finding(stage, "warning", "retune", row.parameter,
@@ -354,12 +360,19 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   "Every chosen effect and the model's own parameters refitted together (the model's own under a prior of "
                   "its configured values, so what the data do not determine stays put; **determined** by the data alone: "
                   "their relative standard deviation, without the prior, below "
-                  f"{diagnosis.determined_std:g}).", "",
+                  f"{diagnosis.determined_std:g}). Where parts of the band (ten points of a channel each) want values "
+                  "that differ beyond chance, the spread of those values is added to the standard deviation as **model "
+                  "form**: the refitted model does not describe every part of the band alike (an effect still missing, "
+                  "or a form the library lacks), the fit averages the difference, and the data cannot tell which part "
+                  "is right.",
+                  "",
                   "| parameter | origin | before | joint value +- std | determined |", "|---|---|---|---|---|"]
         for r in joint.table.itertuples():
             note = "yes" if r.determined else f"no ({100 * r.data_relative_std:.0f} % from the data alone)"
             if r.at_bound:
                 note += ", at a bound"
+            if r.form_std > 0:
+                note += f"; model form +- {r.form_std:.2g} of the std"
             lines.append(f"| {r.parameter} | {r.origin} | {r.start:.6g} | {format_value(r.value, r.std)} | {note} |")
         lines += ["", f"After it: chi2 per point {joint.chi2 / diagnosis.points:.4g} (before {diagnosis.chi2 / diagnosis.points:.4g}).",
                   ""]
