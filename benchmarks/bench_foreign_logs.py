@@ -44,6 +44,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import test_foreign_logs as foreign  # noqa: E402  (the rig and the FRF stage as the tests run them)
@@ -111,7 +113,9 @@ def run(machine, name, effects, truth, seed):
         diagnosis, _ = foreign.diagnosed(path, config)
         seconds = time.perf_counter() - start
     named = [f.candidate.label for f in diagnosis.sequence]
-    joint = {} if diagnosis.joint is None else dict(zip(diagnosis.joint.table["parameter"], diagnosis.joint.table["value"]))
+    table = diagnosis.joint.table if diagnosis.joint is not None else None
+    joint = {} if table is None else dict(zip(table["parameter"], table["value"]))
+    std = {} if table is None else dict(zip(table["parameter"], table["std"]))
     out = {"verdict": diagnosis.verdict, "named": named, "seconds": seconds,
            "unexplained": not diagnosis.unexplained.empty}
     if truth is not None:
@@ -122,6 +126,9 @@ def run(machine, name, effects, truth, seed):
         out["extra"] = sorted(set(named) - wanted)
         out["errors"] = {k: (joint[k] / v - 1 if k in joint else float("nan")) for k, v in truth.items()}
         out["parameters_ok"] = all(abs(e) < 0.02 for e in out["errors"].values())
+        # the stated standard deviations against the errors (|error| / std), where the effect was named
+        out["z"] = [(abs(joint[k] - v) / std[k], f"{name} {k} {joint[k]:.6g} +- {std[k]:.2g} (generator {v:.6g})")
+                    for k, v in truth.items() if k in joint and std[k] > 0]
     return out
 
 
@@ -131,6 +138,7 @@ def main():
     for machine in machines:
         tally = {"library": 0, "found": 0, "equivalent": 0, "with_extra": 0, "parameters_ok": 0, "outside": 0,
                  "outside_honest": 0}
+        z = []
         for name, effects, truth in CASES:
             effects, truth = with_tag(effects, TAGS[machine]), with_tag(truth, TAGS[machine])
             r = run(machine, name, effects, truth, seed)
@@ -140,6 +148,7 @@ def main():
                 for key in ("found", "equivalent", "parameters_ok"):
                     tally[key] += bool(r[key])
                 tally["with_extra"] += bool(r["extra"])
+                z += r["z"]
                 line += " errors " + ", ".join(f"{k.split('.')[-1]} {100 * e:+.2f} %" for k, e in r["errors"].items())
             elif truth is None:
                 tally["outside"] += 1
@@ -150,6 +159,12 @@ def main():
               f"{tally['equivalent']}), with extra effects {tally['with_extra']}, parameters within 2 % "
               f"{tally['parameters_ok']}; outside the library unexplained or nothing {tally['outside_honest']} of "
               f"{tally['outside']}", flush=True)
+        if z:
+            values = np.array([v for v, _ in z])
+            print(f"  stated standard deviations against the errors, {len(z)} parameters: |error| / std median "
+                  f"{np.median(values):.2f} (0.67 if honest), within 2 std {np.mean(values <= 2):.0%} (95 %); beyond 3 "
+                  "std, largest first:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in sorted(z, reverse=True) if v > 3),
+                  flush=True)
 
 
 if __name__ == "__main__":
