@@ -105,9 +105,11 @@ out of sample; median 0.77 and 0.82, within 2 std 83 and 81 %, the largest 3.9 (
 cross coupling; stop 46 read the ascending list's 7.3 as the largest, so the list now comes largest first).  Stop 47
 (each channel's information deflated by its own correlation time, `ambid.diagnose.correlation_time`; the joint
 refit's variances plus the model-form spread where the band's parts disagree, `ambid.diagnose._band_disagreement`):
-the same headline in and out of sample; median 0.64 and 0.66, within 2 std 90 and 90 %, the largest 3.4 (the three
-eddy-current corners, 3.1-3.4, which no part of the band tells apart) and 6.5 (a stiffness scale 0.07 % off at
-0.01 %; the two cross couplings at 11.5 and 12.7 now within 3).  About 7-8 minutes per suite with 2 workers.
+the same headline in and out of sample; median 0.64 and 0.66, within 2 std 90 and 89 %, the largest 3.4 (the three
+eddy-current corners, 3.1-3.4, which no part of the band tells apart) and 11.5 (hs_eden_like 2040's cross coupling,
+whose parts agree within chance; demo20 2040's, 12.7 before, is 2.1 with the model-form part).  One group size alone
+(out of sample): 10 points caught both cross couplings (hs_eden_like's by Q 102.4 against 102.0), 20 neither, 5
+only demo20's; so all four sizes, the tail shared.  About 7-8 minutes per suite with 2 workers.
 """
 
 import concurrent.futures

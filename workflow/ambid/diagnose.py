@@ -92,9 +92,11 @@ HOUSING_SCAN_DAMPING = (0.003, 0.01, 0.03, 0.1, 0.3)
 #: at most 3.2): a cluster that alone determines a direction would otherwise make it as uncertain as the arithmetic
 #: allows.
 LEVERAGE_CAP = 0.9
-#: Consecutive points of a channel in one group of the model-form check (`_band_disagreement`): an eighth of an 80-point
-#: grid, so a systematic error that changes over the band shows as groups that disagree.
-FORM_GROUP_POINTS = 10
+#: Consecutive points of a channel in one group of the model-form check (`_band_disagreement`), each size tried: a
+#: group must be shorter than the stretch over which a systematic error changes to show it, and each point more per
+#: group spends fewer degrees of freedom (the suite's cross couplings measured 3 % high over some ten points: groups of
+#: 10 showed both, of 20 neither, of 5 one).
+FORM_GROUP_POINTS = (5, 10, 20, 40)
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
 #: suite's 20 negative controls (`benchmarks/bench_diagnose.py`) reach 35 at most (the plain evidence 126), hidden
@@ -825,16 +827,17 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
 
     A systematic error that every channel shares is absorbed by the fit: a parameter the library's form describes
     only roughly (the rig's eddy-current lag, eight pole-zero pairs against the library's half order; a cross
-    coupling whose off-diagonal FRF the stepped sine measures 3 % high at 190-300 Hz and right below 100 Hz) takes the
-    value that averages it, and no residual-based variance (`_cluster_variances`) sees that bias, since the fit leaves
-    each cluster's score about zero.  What the data do show is that parts of the band want different values.  Each
-    group, `FORM_GROUP_POINTS` consecutive points of a channel, gives a one-step estimate of each parameter with the
-    others held (its score over its information); Cochran's ``Q`` of these estimates about their mean is chi-square
-    with ``G - 1`` degrees of freedom when the model's form holds.  Where ``Q`` exceeds that with the chance ``tail``
-    (`CELL_TAIL` by default), the DerSimonian-Laird between-group variance ``t^2 = (Q - (G - 1)) / (S1 - S2 / S1)``
-    (``S1``, ``S2`` the sums of the groups' precisions and their squares) is the parameter's model-form variance: the
-    spread of the values the band's parts support, not divided by their number, since the bias that remains is their
-    common part, which the data cannot show.
+    coupling whose off-diagonal FRF reads 3 % high at 190-300 Hz and right below 100 Hz) takes the value that
+    averages it, and no residual-based variance (`_cluster_variances`) sees that bias, since the fit leaves each
+    cluster's score about zero.  What the data do show is that parts of the band want different values.  Each group,
+    consecutive points of a channel, gives a one-step estimate of each parameter with the others held (its score over
+    its information); Cochran's ``Q`` of these estimates about their mean is chi-square with ``G - 1`` degrees of
+    freedom when the model's form holds.  The groups are taken at each size of `FORM_GROUP_POINTS`; where ``Q``
+    exceeds its chance limit at the ``tail`` (`CELL_TAIL` by default) shared among the sizes, the DerSimonian-Laird
+    between-group variance ``t^2 = (Q - (G - 1)) / (S1 - S2 / S1)`` (``S1``, ``S2`` the sums of the groups'
+    precisions and their squares), the largest over the sizes, is the parameter's model-form variance: the spread of
+    the values the band's parts support, not divided by their number, since the bias that remains is their common
+    part, which the data cannot show.
 
     Parameters
     ----------
@@ -852,28 +855,29 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
     array (k,)
         Variances in search coordinates, zero where the groups agree within chance.
     """
-    tail = CELL_TAIL if tail is None else tail
+    tail = (CELL_TAIL if tail is None else tail) / len(FORM_GROUP_POINTS)
     points = residual.size
     channels = np.asarray(channels)
     start = np.flatnonzero(np.r_[True, channels[1:] != channels[:-1]])
     position = np.arange(points) - np.repeat(start, np.diff(np.r_[start, points]))
-    _, group = np.unique(channels * (points + 1) + position // FORM_GROUP_POINTS, return_inverse=True)
-    size = int(group.max()) + 1
     deflation = max(1.0, chi2 / max(points - k, 1)) * np.tile(correlation_time(residual, channels), 2)
-    rows, stacked = np.tile(group, 2), np.concatenate([residual.real, residual.imag])
+    stacked = np.concatenate([residual.real, residual.imag])
     variances = np.zeros(jacobian.shape[1])
-    for j, column in enumerate(jacobian.T):
-        information = np.bincount(rows, column**2 / deflation, minlength=size)
-        score = np.bincount(rows, column * stacked / deflation, minlength=size)
-        seen = information > 1e-12 * information.max(initial=0.0)
-        if np.count_nonzero(seen) < 2:
-            continue
-        precision, estimate = 2 * information[seen], score[seen] / information[seen]
-        mean = np.sum(precision * estimate) / np.sum(precision)
-        q, dof = float(np.sum(precision * (estimate - mean) ** 2)), precision.size - 1
-        if q > scipy.stats.chi2.isf(tail, dof):
-            s1, s2 = np.sum(precision), np.sum(precision**2)
-            variances[j] = (q - dof) / (s1 - s2 / s1)
+    for group_points in FORM_GROUP_POINTS:
+        _, group = np.unique(channels * (points + 1) + position // group_points, return_inverse=True)
+        rows, size = np.tile(group, 2), int(group.max()) + 1
+        for j, column in enumerate(jacobian.T):
+            information = np.bincount(rows, column**2 / deflation, minlength=size)
+            seen = information > 1e-12 * information.max(initial=0.0)
+            if np.count_nonzero(seen) < 2:
+                continue
+            score = np.bincount(rows, column * stacked / deflation, minlength=size)
+            precision, estimate = 2 * information[seen], score[seen] / information[seen]
+            mean = np.sum(precision * estimate) / np.sum(precision)
+            q, dof = float(np.sum(precision * (estimate - mean) ** 2)), precision.size - 1
+            if q > scipy.stats.chi2.isf(tail, dof):
+                s1, s2 = np.sum(precision), np.sum(precision**2)
+                variances[j] = max(variances[j], (q - dof) / (s1 - s2 / s1))
     return variances
 
 

@@ -183,12 +183,16 @@ def diagnosis_findings(diagnosis, stage="diagnose"):
                                    f"{row.parameter} is not determined by these data: {format_value(row.value, row.std)} "
                                    f"({100 * row.relative_std:.0f} % relative with the prior, "
                                    f"{100 * row.data_relative_std:.0f} % from the data alone)", row.data_relative_std))
-            if row.form_std > 0:
-                out.append(Finding(stage, "note", "model_form", row.parameter,
-                                   f"the parts of the band disagree about {row.parameter} beyond chance: its "
-                                   f"{format_value(row.value, row.std)} holds their spread, {row.form_std:.2g} (the "
-                                   "refitted model does not describe every part of the band alike: an effect still "
-                                   "missing, or a form the library lacks)", row.form_std))
+        form = joint[joint["form_std"] > 0]
+        if not form.empty:
+            # one note for all of them: a variant far above the floor has a dozen
+            out.append(Finding(stage, "note", "model_form", ", ".join(form["parameter"]),
+                               "the parts of the band disagree beyond chance about "
+                               + ", ".join(f"{r.parameter} ({format_value(r.value, r.std)}, of which model form "
+                                           f"{r.form_std:.2g})" for r in form.itertuples())
+                               + ": the refitted model does not describe every part of the band alike (an effect still "
+                               "missing, or a form the library lacks), and their standard deviations hold that spread",
+                               float(len(form))))
     if diagnosis.retune is not None:
         for row in diagnosis.retune.itertuples():
             out.append(Finding(stage, "warning", "retune", row.parameter,
@@ -360,7 +364,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
                   "Every chosen effect and the model's own parameters refitted together (the model's own under a prior of "
                   "its configured values, so what the data do not determine stays put; **determined** by the data alone: "
                   "their relative standard deviation, without the prior, below "
-                  f"{diagnosis.determined_std:g}). Where parts of the band (ten points of a channel each) want values "
+                  f"{diagnosis.determined_std:g}). A standard deviation is the parameter's precision within this model: "
+                  "where the model's rotor differs from the machine's (another FEM of the same drawing differs by "
+                  "0.05-0.1 %), a structural parameter takes up the difference, and no standard deviation read from "
+                  "the data includes it. Where parts of the band (5-40 consecutive points of a channel) want values "
                   "that differ beyond chance, the spread of those values is added to the standard deviation as **model "
                   "form**: the refitted model does not describe every part of the band alike (an effect still missing, "
                   "or a form the library lacks), the fit averages the difference, and the data cannot tell which part "
