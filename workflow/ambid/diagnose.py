@@ -94,8 +94,8 @@ HOUSING_SCAN_DAMPING = (0.003, 0.01, 0.03, 0.1, 0.3)
 LEVERAGE_CAP = 0.9
 #: Consecutive points of a channel in one group of the model-form check (`_band_disagreement`), each size tried: a
 #: group must be shorter than the stretch over which a systematic error changes to show it, and each point more per
-#: group spends fewer degrees of freedom (the suite's cross couplings measured 3 % high over some ten points: groups of
-#: 10 showed both, of 20 neither, of 5 one).
+#: group spends fewer degrees of freedom (out of sample, the suite's two cross couplings: groups of 10 showed both,
+#: one by a hair, of 20 neither, of 5 one; all four sizes, the chance tail shared among them, show one).
 FORM_GROUP_POINTS = (5, 10, 20, 40)
 #: Where no cell (band or output row) is above the floor: the evidence, each channel and band weighed by the misfit
 #: the candidate leaves there (`_Cells.channel_evidence`), beyond which a candidate is missing all the same.  The
@@ -1225,14 +1225,16 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     clusters, channels = evaluator.cells.channel_index, evaluator.cells.channel
     covariance = _covariance(jacobian, chi2, points, len(parameters), prior=np.where(prior, prior_scale**2, 0.0),
                              residual=fitted, clusters=clusters, channels=channels)
-    # the model's form: each variance plus the spread of the values the band's parts support beyond chance
+    # the model's form: the data's variance of each parameter plus the spread of the values the band's parts support
+    # beyond chance, then the prior's precision added back (so what the prior holds stays held)
     form = _band_disagreement(jacobian, fitted, channels, chi2, len(parameters))
+    data_variance = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters, channels) ** 2
     model = np.maximum(np.diag(covariance), 1e-300)
-    inflation = np.sqrt((model + form) / model)
-    covariance = covariance * np.outer(inflation, inflation)
+    prior_precision = np.maximum(1.0 / model - 1.0 / np.maximum(data_variance, 1e-300), 0.0)
+    inflation = np.sqrt(1.0 / (1.0 / (data_variance + form) + prior_precision) / model)
+    covariance = covariance * np.outer(np.where(form > 0, inflation, 1.0), np.where(form > 0, inflation, 1.0))
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    data_std_search = np.sqrt(_data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters,
-                                                        channels) ** 2 + form)
+    data_std_search = np.sqrt(data_variance + form)
     scale = np.where(std_search > 0, std_search, 1.0)
     rows = []
     k = 0
