@@ -327,6 +327,15 @@ def test_plants_kept_by_their_structure_give_the_same_response(demo):
     assert any(len(key) == 1 for key in structures) and any(len(key) == 2 for key in structures)
 
 
+def _linear_fit(jacobian, error):
+    """Least squares of a linear model on complex errors: the estimate, the complex residual and its chi2."""
+    data = np.concatenate([error.real, error.imag])
+    x = np.linalg.lstsq(jacobian, data, rcond=None)[0]
+    residual = data - jacobian @ x
+    residual = residual[: error.size] + 1j * residual[error.size:]
+    return x, residual, float(np.vdot(residual, residual).real)
+
+
 def _clustered_least_squares(shared, draws=400, clusters=30, size=20, seed=1):
     """A linear least squares of 3 parameters on ``clusters`` x ``size`` complex points at the floor (variance 1/2 per
     component) plus, with ``shared``, an error common to each cluster's points (rms ``shared`` per component): the
@@ -342,11 +351,7 @@ def _clustered_least_squares(shared, draws=400, clusters=30, size=20, seed=1):
     for _ in range(draws):
         error = (rng.standard_normal(points) + 1j * rng.standard_normal(points)) / np.sqrt(2)
         error = error + shared * (rng.standard_normal(clusters) + 1j * rng.standard_normal(clusters))[index]
-        data = np.concatenate([error.real, error.imag])
-        x = np.linalg.lstsq(jacobian, data, rcond=None)[0]
-        residual = data - jacobian @ x
-        residual = residual[:points] + 1j * residual[points:]
-        chi2 = float(np.vdot(residual, residual).real)
+        x, residual, chi2 = _linear_fit(jacobian, error)
         estimates.append(x)
         plain.append(np.diag(_covariance(jacobian, chi2, points, 3)))
         robust.append(np.diag(_covariance(jacobian, chi2, points, 3, clusters=index, residual=residual)))
@@ -729,11 +734,7 @@ def test_each_channel_carries_its_own_correlation_time():
         for k in range(1, size):
             smooth[k] = 0.6 * smooth[k - 1] + np.sqrt(1 - 0.36) * error[k]
         error[:size] = smooth
-        data = np.concatenate([error.real, error.imag])
-        x = np.linalg.lstsq(jacobian, data, rcond=None)[0]
-        residual = data - jacobian @ x
-        residual = residual[:points] + 1j * residual[points:]
-        chi2 = float(np.vdot(residual, residual).real)
+        x, residual, chi2 = _linear_fit(jacobian, error)
         estimates.append(x)
         pooled.append(np.diag(_covariance(jacobian, chi2, points, 2, residual=residual)))
         own.append(np.diag(_covariance(jacobian, chi2, points, 2, residual=residual, channels=channel)))
@@ -760,11 +761,7 @@ def test_a_bias_that_changes_over_the_band_is_stated_as_model_form():
 
     def stated(biased):
         error = (rng.standard_normal(points) + 1j * rng.standard_normal(points)) / np.sqrt(2)
-        data = np.concatenate([(error + biased).real, (error + biased).imag])
-        x = np.linalg.lstsq(jacobian, data, rcond=None)[0]
-        residual = data - jacobian @ x
-        residual = residual[:points] + 1j * residual[points:]
-        chi2 = float(np.vdot(residual, residual).real)
+        x, residual, chi2 = _linear_fit(jacobian, error + biased)
         plain = float(np.sqrt(_covariance(jacobian, chi2, points, 1, residual=residual, channels=channel)[0, 0]))
         form = _band_disagreement(jacobian, residual, channel, chi2, 1)
         return float(x[0]), plain, float(np.sqrt(plain**2 + form[0])), form[0]
