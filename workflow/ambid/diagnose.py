@@ -740,10 +740,21 @@ def correlation_time(residual, channels=None):
     return (1 + rho) / (1 - rho)
 
 
+def _dispersion(chi2, points, k):
+    """The misfit left per degree of freedom, at least 1: what the data's information is divided by."""
+    return max(1.0, chi2 / max(points - k, 1))
+
+
+def _with_variances(covariance, variances):
+    """``covariance`` with its diagonal made ``variances``, its correlations kept."""
+    scale = np.sqrt(variances / np.maximum(np.diag(covariance), 1e-300))
+    return covariance * np.outer(scale, scale)
+
+
 def _information(jacobian, chi2, points, k, residual=None, channels=None):
     """``J^T J`` deflated: divided by the misfit left per degree of freedom (at least 1) and by the residual's
     `correlation_time` along frequency, each channel's rows by its own given ``channels``."""
-    dispersion = max(1.0, chi2 / max(points - k, 1))
+    dispersion = _dispersion(chi2, points, k)
     if residual is None:
         return jacobian.T @ jacobian / dispersion
     time = correlation_time(residual, channels)
@@ -770,9 +781,8 @@ def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=N
     covariance = 0.5 * np.linalg.pinv(information)
     if clusters is not None and residual is not None:
         # each variance at least the cluster-robust one, the correlations the model's
-        model = np.maximum(np.diag(covariance), 1e-300)
-        scale = np.sqrt(np.maximum(_cluster_variances(jacobian, residual, clusters, prior), model) / model)
-        covariance = covariance * np.outer(scale, scale)
+        covariance = _with_variances(covariance, np.maximum(_cluster_variances(jacobian, residual, clusters, prior),
+                                                            np.diag(covariance)))
     return covariance
 
 
@@ -860,7 +870,7 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
     channels = np.asarray(channels)
     start = np.flatnonzero(np.r_[True, channels[1:] != channels[:-1]])
     position = np.arange(points) - np.repeat(start, np.diff(np.r_[start, points]))
-    deflation = max(1.0, chi2 / max(points - k, 1)) * np.tile(correlation_time(residual, channels), 2)
+    deflation = _dispersion(chi2, points, k) * np.tile(correlation_time(residual, channels), 2)
     stacked = np.concatenate([residual.real, residual.imag])
     variances = np.zeros(jacobian.shape[1])
     for group_points in FORM_GROUP_POINTS:
@@ -1229,10 +1239,10 @@ def joint_refit(machine, measured, chosen=(), settings=DiagnoseSettings(), cells
     # beyond chance, then the prior's precision added back (so what the prior holds stays held)
     form = _band_disagreement(jacobian, fitted, channels, chi2, len(parameters))
     data_variance = _data_standard_deviations(jacobian, chi2, points, len(parameters), fitted, clusters, channels) ** 2
-    model = np.maximum(np.diag(covariance), 1e-300)
-    prior_precision = np.maximum(1.0 / model - 1.0 / np.maximum(data_variance, 1e-300), 0.0)
-    inflation = np.sqrt(1.0 / (1.0 / (data_variance + form) + prior_precision) / model)
-    covariance = covariance * np.outer(np.where(form > 0, inflation, 1.0), np.where(form > 0, inflation, 1.0))
+    variances = np.diag(covariance)
+    prior_precision = np.maximum(1.0 / np.maximum(variances, 1e-300) - 1.0 / np.maximum(data_variance, 1e-300), 0.0)
+    covariance = _with_variances(covariance, np.where(form > 0, 1.0 / (1.0 / (data_variance + form) + prior_precision),
+                                                      variances))
     std_search = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     data_std_search = np.sqrt(data_variance + form)
     scale = np.where(std_search > 0, std_search, 1.0)
