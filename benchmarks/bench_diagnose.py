@@ -258,6 +258,15 @@ def score(result):
     return out
 
 
+def calibration_text(z):
+    """The stated standard deviations against the errors, ``z`` pairs of ``|value - truth| / std`` and a description:
+    the median, the share within 2 (0.67 and 95 % if honest) and every one beyond 3, largest first."""
+    values = np.array([v for v, _ in z])
+    return (f"|error| / std median {np.median(values):.2f} (0.67 if honest), within 2 std {np.mean(values <= 2):.0%} "
+            "(95 %); beyond 3 std, largest first:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in sorted(z, reverse=True)
+                                                            if v > 3))
+
+
 def suite(seeds, radial_points, workers):
     cases = []
     for machine in MACHINES:
@@ -300,12 +309,10 @@ def suite(seeds, radial_points, workers):
           f"{sum(s['lead_is_truth'] for s in unnamed)} of {len(unnamed)}")
     print(f"parameters within 5 % where determined, else covered by 2 std: {sum(s['parameters_ok'] for s in library)} "
           f"of {len(library)}")
-    z = sorted((value, parameter) for s in library for value, parameter in s.get("z", []))
+    z = [(value, parameter) for s in library for value, parameter in s.get("z", [])]
     if z:
-        values = np.array([v for v, _ in z])
-        print(f"  stated standard deviations against the errors, {len(z)} parameters of the top-1 cases: |error| / std "
-              f"median {np.median(values):.2f} (0.67 if honest), within 2 std {np.mean(values <= 2):.0%} (95 %); beyond "
-              f"3 std, largest first:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in reversed(z) if v > 3))
+        print(f"  stated standard deviations against the errors, {len(z)} parameters of the top-1 cases: "
+              + calibration_text(z))
     print(f"final misfit at the floor (no cell above it after the joint refit): {sum(s['at_floor'] for s in library)} "
           f"of {len(library)}")
     outside = by_kind("outside")

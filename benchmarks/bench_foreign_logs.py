@@ -51,11 +51,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import test_foreign_logs as foreign  # noqa: E402  (the rig and the FRF stage as the tests run them)
+from bench_diagnose import calibration_text  # noqa: E402
 
 #: The generator's effect -> the library's, where the two are the same physics on the measured channels.
 EQUIVALENT = {"eddy_current": "sensor_lowpass"}
@@ -167,10 +166,7 @@ def main():
               f"{tally['parameters_ok']}; outside the library unexplained or nothing {tally['outside_honest']} of "
               f"{tally['outside']}", flush=True)
         if z:
-            values = np.array([v for v, _ in z])
-            print(f"  stated standard deviations against the errors, {len(z)} parameters: |error| / std median "
-                  f"{np.median(values):.2f} (0.67 if honest), within 2 std {np.mean(values <= 2):.0%} (95 %); beyond 3 "
-                  "std, largest first:" + "".join(f"\n    {v:5.1f}  {p}" for v, p in sorted(z, reverse=True) if v > 3),
+            print(f"  stated standard deviations against the errors, {len(z)} parameters: {calibration_text(z)}",
                   flush=True)
 
 
