@@ -235,7 +235,12 @@ def test_a_diagnosis_from_an_alternative_start_says_so(demo):
     own_update = [effect("element_stiffness", tag="design", scale=(0.62, 0.58, 0.61, 0.6))]
     diagnosis = diagnose(model, measured, alternatives=[("run 2's own update", own_update)])
     assert diagnosis.verdict == "retune" and diagnosis.summary()["chi2_per_point_after"] < 1.1
-    assert len(diagnosis.retune) == 4 and np.allclose(diagnosis.retune["value"], 0.6, rtol=0.05)
+    # the four design elements are 92-99 % correlated (1000 points): each is stated to 1.6-5 %, and where a machine's
+    # last digits end the descent along that valley differs; each value is inside two of its standard deviations and
+    # their mean, which the data do fix, within 1 %
+    retune = diagnosis.retune
+    assert len(retune) == 4 and np.all(np.abs(retune["value"] - 0.6) <= 2 * retune["std"])
+    assert retune["value"].mean() == pytest.approx(0.6, rel=0.01)
     _, text = diagnosis_report(diagnosis, Plant(model), measured, None, "demo20, run 2, model far")
     assert "had two starts, run 2's own update and the model's values" in text
     assert "The refit kept its descent from run 2's own update" in text  # beside the moved values: set them all
