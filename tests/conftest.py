@@ -52,7 +52,8 @@ def demo_plant(demo_machine):
 #: silently stops grouping on pytest 9.2, pytest-dev/pytest-xdist#1386; this does the same by node id.)
 SHARED_FIXTURE_GROUPS = {
     "tests/test_reproducibility.py::": "two_runs",  # the two clean workflow runs
-    "tests/test_calibration.py::TestProcedure::": "hs_calibration",  # one calibration run on the rig
+    "tests/test_calibration.py::TestProcedure::": "hs_calibration",  # one calibration run on the rig ...
+    "tests/test_calibration.py::TestBadLogs::": "hs_calibration",  # ... which these alter
 }
 
 

@@ -65,7 +65,6 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 import scipy.special
-import scipy.stats
 
 from .compare import channel_family, model_response
 from .effects import EFFECTS
@@ -885,7 +884,7 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
             precision, estimate = 2 * information[seen], score[seen] / information[seen]
             mean = np.sum(precision * estimate) / np.sum(precision)
             q, dof = float(np.sum(precision * (estimate - mean) ** 2)), precision.size - 1
-            if q > scipy.stats.chi2.isf(tail, dof):
+            if q > 2 * scipy.special.gammainccinv(dof / 2, tail):  # chi2's upper quantile (scipy.stats costs 0.3 s to import)
                 s1, s2 = np.sum(precision), np.sum(precision**2)
                 variances[j] = max(variances[j], (q - dof) / (s1 - s2 / s1))
     return variances
