@@ -92,6 +92,17 @@ def test_delay_recovered_on_synthetic_data_and_nothing_else_missing(demo):
     assert table.loc[0, "share_above_floor"] > 0.99
 
 
+def test_a_slow_rotation_the_data_resolve_is_named_not_held_at_a_bound(demo):
+    # demo20 at 40 rpm: the gyroscopic term is proportional to the speed and these data resolve it; with the search
+    # starting at 100 rpm (before stop 48) the fit ended at that bound and the misfit was called unexplained
+    measured = synthetic_measurement(demo, [effect("gyroscopic", speed_rpm=40.0)])
+    measured = {key: tuple(v[::5] for v in values) for key, values in measured.items()}
+    diagnosis = diagnose(demo, measured)
+    assert diagnosis.verdict == "missing" and [f.candidate.label for f in diagnosis.sequence] == ["gyroscopic"]
+    row = diagnosis.joint.table.set_index("parameter").loc["gyroscopic.speed_rpm"]
+    assert not row["at_bound"] and abs(row["value"] - 40.0) <= 2 * row["std"] and row["std"] < 0.01 * 40.0
+
+
 def test_nothing_missing_on_the_model_itself(demo):
     diagnosis = diagnose(demo, synthetic_measurement(demo))
     assert diagnosis.chi2 / diagnosis.points == pytest.approx(1.0, abs=0.1)

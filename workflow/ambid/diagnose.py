@@ -212,7 +212,7 @@ def candidate_space(machine):
     Search ranges cover the physical ranges of AMB machines generously:
     amplifier and sensor bandwidths 50 Hz - 100 kHz, eddy-current corners
     50 Hz - 1 MHz, delays 0.1 us - 1 ms, couplings +-20 %, stiffness factors
-    0.05 - 5, added damping ratios 1e-4 - 0.1, speeds 100 - 200 000 rpm,
+    0.05 - 5, added damping ratios 1e-5 - 0.1, speeds 1 - 200 000 rpm,
     sensor shifts up to 60 mm (kept on the rotor) and housing modes 20 Hz -
     5 kHz of 0.05 - 10 000 rotor masses (also scanned where the misfit peaks), the bearings' force constant and delivered
     bias current within 0.7 - 1.4 of the drawing's, per axis.
@@ -234,7 +234,10 @@ def candidate_space(machine):
                              (FreeParameter("scale", 0.05, 5.0, start=1.0, scan=32),), {"tag": tag}) for tag in tags]
     candidates += [
         Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 1e-5, 0.1, scan=20),)),
-        Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 100.0, 2e5, scan=48),)),
+        # from 1 rpm: the gyroscopic term grows with the speed, and a rotor with heavy discs shows it below 100 rpm (the
+        # suite's demo20 2051 draw, 86 rpm, earned BIC evidence 325 and ended at a bound of 100); the scan keeps its
+        # 13-14 points a decade
+        Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 1.0, 2e5, scan=72),)),
     ]
     shifts = []
     for bearing, key in (("DE", "de_offset_m"), ("NDE", "nde_offset_m")):
