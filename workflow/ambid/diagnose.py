@@ -234,9 +234,9 @@ def candidate_space(machine):
                              (FreeParameter("scale", 0.05, 5.0, start=1.0, scan=32),), {"tag": tag}) for tag in tags]
     candidates += [
         Candidate("modal_damping", "modal_damping", (FreeParameter("damping_ratio", 1e-5, 0.1, scan=20),)),
-        # from 1 rpm: the gyroscopic term grows with the speed, and a rotor with heavy discs shows it below 100 rpm (the
-        # suite's demo20 2051 draw, 86 rpm, earned BIC evidence 325 and ended at a bound of 100); the scan keeps its
-        # 13-14 points a decade
+        # from 1 rpm: the data resolve a rotation far below 100 rpm (three times the floor at 31 rpm on demo20, 3.5 rpm
+        # on hs_eden_like; the suite's demo20 2051 draw, 86 rpm, earned BIC evidence 325 and ended at a bound of 100);
+        # 13-14 scan points a decade, as before
         Candidate("gyroscopic", "gyroscopic", (FreeParameter("speed_rpm", 1.0, 2e5, scan=72),)),
     ]
     shifts = []
@@ -887,7 +887,8 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
             precision, estimate = 2 * information[seen], score[seen] / information[seen]
             mean = np.sum(precision * estimate) / np.sum(precision)
             q, dof = float(np.sum(precision * (estimate - mean) ** 2)), precision.size - 1
-            if q > 2 * scipy.special.gammainccinv(dof / 2, tail):  # chi2's upper quantile (scipy.stats costs 0.3 s to import)
+            # chi2's upper quantile (from scipy.special: importing scipy.stats costs 0.3 s in every diagnose job)
+            if q > 2 * scipy.special.gammainccinv(dof / 2, tail):
                 s1, s2 = np.sum(precision), np.sum(precision**2)
                 variances[j] = max(variances[j], (q - dof) / (s1 - s2 / s1))
     return variances
