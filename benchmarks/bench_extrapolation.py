@@ -39,7 +39,7 @@ effective number of independent points ``(mean / sd)^2`` (the cell's point count
 the cell's chance limit (`ambid.diagnose.chance_limit` of its points) and on how many seeds the cell reads above it
 (0.135 % of them if the points were independent).  Measured (stop 48, seeds 2040-2079, 40 logs a machine): the axial
 position cell (26 points, 1-100 Hz) at zero amplitude reads mean 1.14 and 1.04 (demo20, hs_eden_like), standard
-deviation 0.51 and 0.45 where independent points give 0.22 and 0.20: about 5 effective points of 26, and above its
+deviation 0.52 and 0.46 where independent points give 0.22 and 0.20: 4.8 and 5.1 effective points of 26, above its
 limit of 1.69 on 5 and 3 of 40 logs.  The steps between two repeated pairs take the amplitude coefficient
 interpolated from those pairs, so one pair's noise is in all of them (their standardized errors correlate 0.57 from
 one step to the next).  The hidden-effect suite's negative controls on seeds 2050-2059 read "unexplained" (twice) and
