@@ -45,9 +45,9 @@ interpolated from those pairs, so one pair's noise is in all of them (their stan
 one step to the next).  The hidden-effect suite's negative controls on seeds 2050-2059 read "unexplained" (twice) and
 "actuator_coefficients missing" for exactly that cell.  Measured without the extrapolation the same cell reads 0.72
 and 0.65, standard deviation 0.06.  A coefficient fitted over the whole channel (the lowest polynomial in log
-frequency its pairs allow) was tried and is wrong: the pairs below 20 Hz are 10-100 times noisier than those near
-100 Hz, the line through the latter passes the test and extrapolates to the low steps, where the axial cell then read
-3.06 on all three hs_eden_like logs.
+frequency its pairs allow) was tried and is wrong: the pairs' coefficients below 20 Hz carry standard deviations of
+0.06-0.15, those near 100 Hz 0.0002-0.0004 (hs_eden_like 2057), so the line through the latter passes the test and
+extrapolates to the low steps, where the axial cell then read 3.06 on all three hs_eden_like logs.
 
 Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_extrapolation.py`` (parts 1-3, about 3 minutes);
 ``... bench_extrapolation.py --cells [first seed] [logs] [workers]`` (part 4 alone, default 2040, 40 and 2: about 15
