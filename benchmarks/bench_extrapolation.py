@@ -76,6 +76,8 @@ from ambid.machine import machine_from_config
 from ambid.plant import Plant
 from ambid.rig import RigModel
 
+from bench_diagnose import machine_config as suite_machine_config  # noqa: E402  (the suite's grids)
+
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 7
 
@@ -170,7 +172,7 @@ def noise_study(config, settings, seeds, sensor_noise_m, current_noise_a, resolu
 def no_effect_cells(case):
     """Part 4, one log: each cell's chi2 per point of the nominal model, ``{zero_amplitude: cells frame}``."""
     name, seed = case
-    config = suite_grid(name)
+    config = suite_machine_config(name, 80)  # the diagnosis benchmark's grid: 80 radial points from 1 Hz, 26 axial
     settings = settings_from_config(yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"])
     plant = Plant(machine_from_config(config))
     records, _ = run_stepped_sine(RigModel(hidden_effect_rig(config, [])), StepPlan.for_machine(plant, settings),
@@ -182,14 +184,6 @@ def no_effect_cells(case):
         model, _ = for_run(machine_from_config(config), measured, {}, "diagnose")
         out[zero] = misfit_cells(measured, model_response(Plant(model), measured))
     return name, seed, out
-
-
-def suite_grid(name):
-    """The diagnosis benchmark's grid (`bench_diagnose.machine_config` at 80 points): 80 radial points from 1 Hz, 26 axial."""
-    config = yaml.safe_load((ROOT / f"config/machines/{name}.yaml").read_text())
-    config["frequency_grid"]["radial"]["points"] = 80
-    config["frequency_grid"]["axial"]["points"] = 26
-    return config
 
 
 def cell_study(first_seed, logs, workers):
@@ -206,12 +200,13 @@ def cell_study(first_seed, logs, workers):
         for zero in (True, False):
             cells = outs[0][zero]
             per_point = np.array([out[zero]["chi2_per_point"].to_numpy() for out in outs])
-            limit = np.maximum(1.5, chance_limit(cells["points"].to_numpy()))
+            above = np.array([out[zero]["above_floor"].to_numpy() for out in outs])
+            limit = np.maximum(DiagnoseSettings.floor_limit, chance_limit(cells["points"].to_numpy()))
             for k, cell in enumerate(cells.itertuples()):
                 mean, sd = per_point[:, k].mean(), per_point[:, k].std(ddof=1)
                 print(f"   {cell.family:9s} {cell.band:12s} {cell.output:6s} {str(zero):5s}  {cell.points:6d}  {mean:6.2f} "
                       f"{sd:6.2f}  ({mean / np.sqrt(cell.points):5.2f})  {(mean / sd) ** 2 if sd > 0 else np.inf:14.1f}"
-                      f"  {limit[k]:6.2f}  {np.sum(per_point[:, k] > limit[k]):3d} of {len(outs)}")
+                      f"  {limit[k]:6.2f}  {np.sum(above[:, k]):3d} of {len(outs)}")
 
 
 def main():
