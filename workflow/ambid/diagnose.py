@@ -753,15 +753,19 @@ def _with_variances(covariance, variances):
     return covariance * np.outer(scale, scale)
 
 
+def _row_correlation_times(residual, channels, points):
+    """The residual's `correlation_time` for each row of the stacked Jacobian (the real parts' rows, then the imaginary
+    parts'), each channel's own given ``channels``."""
+    return np.tile(np.broadcast_to(correlation_time(residual, channels), (points,)), 2)
+
+
 def _information(jacobian, chi2, points, k, residual=None, channels=None):
     """``J^T J`` deflated: divided by the misfit left per degree of freedom (at least 1) and by the residual's
     `correlation_time` along frequency, each channel's rows by its own given ``channels``."""
     dispersion = _dispersion(chi2, points, k)
     if residual is None:
         return jacobian.T @ jacobian / dispersion
-    time = correlation_time(residual, channels)
-    weights = np.tile(np.broadcast_to(time, (points,)), 2)  # the real parts' rows, then the imaginary parts'
-    return jacobian.T @ (jacobian / weights[:, None]) / dispersion
+    return jacobian.T @ (jacobian / _row_correlation_times(residual, channels, points)[:, None]) / dispersion
 
 
 def _covariance(jacobian, chi2, points, k, prior=None, residual=None, clusters=None, channels=None):
@@ -872,7 +876,7 @@ def _band_disagreement(jacobian, residual, channels, chi2, k, tail=None):
     channels = np.asarray(channels)
     start = np.flatnonzero(np.r_[True, channels[1:] != channels[:-1]])
     position = np.arange(points) - np.repeat(start, np.diff(np.r_[start, points]))
-    deflation = _dispersion(chi2, points, k) * np.tile(correlation_time(residual, channels), 2)
+    deflation = _dispersion(chi2, points, k) * _row_correlation_times(residual, channels, points)
     stacked = np.concatenate([residual.real, residual.imag])
     variances = np.zeros(jacobian.shape[1])
     for group_points in FORM_GROUP_POINTS:
