@@ -113,8 +113,9 @@ only demo20's; so all four sizes, the tail shared.  Stop 48, a third sample (``-
 2050-2059): top-1 47 of 50, parameters 45, final misfit 50 of 50, outside 8 / 8 and 8 / 8, negative controls 17 of 20;
 demo20 2051's gyroscopic draw (86 rpm, BIC evidence 325) ended at the candidate's bound of 100 rpm, which the data
 resolve far below (three times the floor at 31 rpm on demo20, 3.5 rpm on hs_eden_like); from 1 rpm: top-1 48,
-parameters 46, in sample and on 2040-2041 row for row the same.  The three negative controls are the axial position cell at zero
-amplitude (`bench_extrapolation.py --cells`): two "unexplained", one ``actuator_coefficients`` missing, unchanged.
+parameters 46, in sample and on 2040-2041 row for row the same.  The three negative controls are the axial position
+cell at zero amplitude (`bench_extrapolation.py --cells`): two "unexplained", one ``actuator_coefficients`` missing,
+unchanged.
 About 7-8 minutes per suite with 2 workers.
 """
 

@@ -174,14 +174,14 @@ def no_effect_cells(case):
     name, seed = case
     config = suite_machine_config(name, 80)  # the diagnosis benchmark's grid: 80 radial points from 1 Hz, 26 axial
     settings = settings_from_config(yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"])
-    plant = Plant(machine_from_config(config))
-    records, _ = run_stepped_sine(RigModel(hidden_effect_rig(config, [])), StepPlan.for_machine(plant, settings),
-                                  settings, seed=seed)
+    machine = machine_from_config(config)
+    plan = StepPlan.for_machine(Plant(machine), settings)
+    records, _ = run_stepped_sine(RigModel(hidden_effect_rig(config, [])), plan, settings, seed=seed)
     frame = identification_frame(records)
     out = {}
     for zero in (True, False):
         measured = measured_channels(frf_from_log(frame, FloorSettings(zero_amplitude=zero))[0])
-        model, _ = for_run(machine_from_config(config), measured, {}, "diagnose")
+        model, _ = for_run(machine, measured, {}, "diagnose")
         out[zero] = misfit_cells(measured, model_response(Plant(model), measured))
     return name, seed, out
 
@@ -204,8 +204,9 @@ def cell_study(first_seed, logs, workers):
             limit = np.maximum(DiagnoseSettings.floor_limit, chance_limit(cells["points"].to_numpy()))
             for k, cell in enumerate(cells.itertuples()):
                 mean, sd = per_point[:, k].mean(), per_point[:, k].std(ddof=1)
-                print(f"   {cell.family:9s} {cell.band:12s} {cell.output:6s} {str(zero):5s}  {cell.points:6d}  {mean:6.2f} "
-                      f"{sd:6.2f}  ({mean / np.sqrt(cell.points):5.2f})  {(mean / sd) ** 2 if sd > 0 else np.inf:14.1f}"
+                print(f"   {cell.family:9s} {cell.band:12s} {cell.output:6s} {str(zero):5s}  {cell.points:6d}  "
+                      f"{mean:6.2f} {sd:6.2f}  ({mean / np.sqrt(cell.points):5.2f})  "
+                      f"{(mean / sd) ** 2 if sd > 0 else np.inf:14.1f}"
                       f"  {limit[k]:6.2f}  {np.sum(above[:, k]):3d} of {len(outs)}")
 
 
