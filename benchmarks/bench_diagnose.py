@@ -115,8 +115,10 @@ demo20 2051's gyroscopic draw (86 rpm, BIC evidence 325) ended at the candidate'
 resolve far below (three times the floor at 31 rpm on demo20, 3.5 rpm on hs_eden_like); from 1 rpm: top-1 48,
 parameters 46, in sample and on 2040-2041 row for row the same.  The three negative controls are the axial position
 cell at zero amplitude (`bench_extrapolation.py --cells`): two "unexplained", one ``actuator_coefficients`` missing,
-unchanged.
-About 7-8 minutes per suite with 2 workers.
+unchanged.  Stop 49, each cell's limit at the points its shares count for (`ambid.amplitude.effective_share`; the
+axial cell's 26 points count as about 6): negative controls 20 of 20 on 2050-2059 (hs_eden_like 2052, demo20 2057
+and 2059 say "nothing"), every other row of the three samples the same.
+About 8-9 minutes per suite with 2 workers.
 """
 
 import concurrent.futures
@@ -129,7 +131,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ambid.compare import for_run, measured_channels, model_response
+from ambid.compare import effective_shares, for_run, measured_channels, model_response
 from ambid.diagnose import (INDISTINGUISHABLE_BIC, bic_evidence, diagnose, effect_label, misfit,
                             plant_with_effects)
 from ambid.effects import EFFECTS, effect_from_config
@@ -200,7 +202,7 @@ def run_case(case):
     # as rule diagnose models a run (the coil-current sampling taken from the data: the rig samples at the start of
     # the cycle)
     model, findings = for_run(machine_from_config(config), measured, {}, "diagnose")
-    diagnosis = diagnose(model, measured)
+    diagnosis = diagnose(model, measured, shares=effective_shares(table))
     return {"case": case, "draws": draws, "diagnosis": diagnosis, "identify_s": identified,
             "diagnose_s": time.perf_counter() - started, "truth_evidence": truth_evidence(config, measured, effects),
             "sampling": model.coil_current_sampling, "run_findings": sorted({f.code for f in findings})}
@@ -344,9 +346,10 @@ def thesis_case(radial_points):
     settings = settings_from_config(CONFIG["identification"])
     for scale in (0.5, 0.7, 1.3):
         rig = hidden_effect_rig(config, [{"name": "element_stiffness", "parameters": {"tag": "design", "scale": scale}}])
-        measured = measured_channels(identify_on_rig(rig, config, settings, seed=11))
+        table = identify_on_rig(rig, config, settings, seed=11)
+        measured = measured_channels(table)
         started = time.perf_counter()
-        diagnosis = diagnose(machine_from_config(config), measured)
+        diagnosis = diagnose(machine_from_config(config), measured, shares=effective_shares(table))
         wall = time.perf_counter() - started
         first = diagnosis.sequence[0].candidate.label if diagnosis.sequence else "-"
         value = diagnosis.joint.table.set_index("parameter")["value"].get("element_stiffness[design].scale", np.nan) \
@@ -368,7 +371,7 @@ def default_machines():
         for variant in ["nominal"] + list(CONFIG["machines"][machine].get("variants") or {}):
             model = machine_from_config(read_yaml(ROOT / "results" / machine / "model" / variant / "machine.yaml"))
             started = time.perf_counter()
-            diagnosis = diagnose(model, measured)
+            diagnosis = diagnose(model, measured, shares=effective_shares(table))
             wall = time.perf_counter() - started
             said = diagnosis.summary()
             print(f"  {machine:<13} {variant:<10} {wall:6.1f} s [target <= {target:.0f} s: {'ok' if wall <= target else 'MISSED'}]"

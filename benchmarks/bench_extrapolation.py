@@ -35,9 +35,11 @@ Part 4 is what the diagnosis' cells see on logs without a hidden effect: the rig
 diagnosis benchmark's grid (80 radial points from 1 Hz, 26 axial), over many seeds, through the FRF stage with
 ``zero_amplitude`` on and off, the nominal model as rule diagnose makes it (`ambid.compare.for_run`).  Per family and
 band cell (`ambid.diagnose.misfit_cells`): the mean and standard deviation of chi2 per point over the seeds, the
-effective number of independent points ``(mean / sd)^2`` (the cell's point count where its errors are independent),
-the cell's chance limit (`ambid.diagnose.chance_limit` of its points) and on how many seeds the cell reads above it
-(0.135 % of them if the points were independent).  Measured (stop 48, seeds 2040-2079, 40 logs a machine): the axial
+effective number of independent points ``(mean / sd)^2`` (the cell's point count where its errors are independent)
+beside the sum of its points' ``effective_share`` that the FRF stage states (median over the logs), the cell's chance
+limit (`ambid.diagnose.chance_limit` of those, median and largest) and on how many seeds the cell reads above it
+(0.135 % of them if the stated shares were right and the tail Gamma).  Measured (stop 48, seeds 2040-2079, 40 logs a
+machine, every point counted as independent): the axial
 position cell (26 points, 1-100 Hz) at zero amplitude reads mean 1.14 and 1.04 (demo20, hs_eden_like), standard
 deviation 0.52 and 0.46 where independent points give 0.22 and 0.20: 4.8 and 5.1 effective points of 26, above its
 limit of 1.69 on 5 and 3 of 40 logs.  The steps between two repeated pairs take the amplitude coefficient
@@ -48,6 +50,13 @@ and 0.65, standard deviation 0.06.  A coefficient fitted over the whole channel 
 frequency its pairs allow) was tried and is wrong: the pairs' coefficients below 20 Hz carry standard deviations of
 0.06-0.15, those near 100 Hz 0.0002-0.0004 (hs_eden_like 2057), so the line through the latter passes the test and
 extrapolates to the low steps, where the axial cell then read 3.06 on all three hs_eden_like logs.
+
+Stop 49, the same logs with each point's share stated (`ambid.amplitude.effective_share`: the pairs' noise in the
+steps between them, the pooled noise estimates, the scale to the neighbours' scatter): the axial cell's points state
+6.1 and 5.8 independent ones (the spread shows 4.8 and 5.1), its limit is 2.65 and 2.71 (median; 2.74 and 2.80 at
+most), and it reads above it on 1 of 40 logs of each machine: demo20 2071 at 2.62 against 2.52, hs_eden_like 2078 at
+2.68 against 2.55.
+The coil-current cells state their point counts (26.0 and 25.3 for the 26 I_Z points; their spread shows 23 and 25).
 
 Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_extrapolation.py`` (parts 1-3, about 3 minutes);
 ``... bench_extrapolation.py --cells [first seed] [logs] [workers]`` (part 4 alone, default 2040, 40 and 2: about 15
@@ -62,8 +71,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ambid.compare import for_run, measured_channels, model_response
-from ambid.diagnose import (DiagnoseSettings, candidate_space, chance_limit, diagnose, joint_refit, misfit,
+from ambid.compare import effective_shares, for_run, measured_channels, model_response
+from ambid.diagnose import (DiagnoseSettings, candidate_space, diagnose, joint_refit, misfit,
                             misfit_cells, plant_with_effects)
 from ambid.effects import effect_from_config
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
@@ -180,9 +189,10 @@ def no_effect_cells(case):
     frame = identification_frame(records)
     out = {}
     for zero in (True, False):
-        measured = measured_channels(frf_from_log(frame, FloorSettings(zero_amplitude=zero))[0])
+        table = frf_from_log(frame, FloorSettings(zero_amplitude=zero))[0]
+        measured = measured_channels(table)
         model, _ = for_run(machine, measured, {}, "diagnose")
-        out[zero] = misfit_cells(measured, model_response(Plant(model), measured))
+        out[zero] = misfit_cells(measured, model_response(Plant(model), measured), shares=effective_shares(table))
     return name, seed, out
 
 
@@ -195,19 +205,21 @@ def cell_study(first_seed, logs, workers):
             results.setdefault(name, []).append(out)
     for name, outs in results.items():
         print(f"-- {name}, no hidden effect, seeds {first_seed}-{first_seed + logs - 1}: chi2 per point of each cell")
-        print("   cell                          zero amplitude  points   mean     sd  (independent)  effective points"
-              "   limit  above it")
+        print("   cell                          zero amplitude  points   mean     sd  (independent)  effective points:"
+              " from the spread, stated (median)   limit (median, max)  above it")
         for zero in (True, False):
             cells = outs[0][zero]
             per_point = np.array([out[zero]["chi2_per_point"].to_numpy() for out in outs])
             above = np.array([out[zero]["above_floor"].to_numpy() for out in outs])
-            limit = np.maximum(DiagnoseSettings.floor_limit, chance_limit(cells["points"].to_numpy()))
+            stated = np.array([out[zero]["effective_points"].to_numpy() for out in outs])
+            limit = np.array([out[zero]["limit"].to_numpy() for out in outs])
             for k, cell in enumerate(cells.itertuples()):
                 mean, sd = per_point[:, k].mean(), per_point[:, k].std(ddof=1)
                 print(f"   {cell.family:9s} {cell.band:12s} {cell.output:6s} {str(zero):5s}  {cell.points:6d}  "
                       f"{mean:6.2f} {sd:6.2f}  ({mean / np.sqrt(cell.points):5.2f})  "
-                      f"{(mean / sd) ** 2 if sd > 0 else np.inf:14.1f}"
-                      f"  {limit[k]:6.2f}  {np.sum(above[:, k]):3d} of {len(outs)}")
+                      f"{(mean / sd) ** 2 if sd > 0 else np.inf:14.1f} {np.median(stated[:, k]):8.1f}"
+                      f"  {np.median(limit[:, k]):6.2f} {limit[:, k].max():6.2f}"
+                      f"  {np.sum(above[:, k]):3d} of {len(outs)}")
 
 
 def main():

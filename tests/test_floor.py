@@ -41,10 +41,12 @@ class TestBands:
         assert len(frequency_bands(np.linspace(1.0, 100.0, 15), min_points=20)) == 2
 
 
-def synthetic_log(kappa, noise, seed=0, points=60, repeat_ratio=0.5, lever_current=0.0):
+def synthetic_log(kappa, noise, seed=0, points=60, repeat_ratio=0.5, lever_current=0.0, stated_dof=None):
     """A log of one excited axis DX whose plant deviates by ``kappa A^2`` at amplitude A, every other step repeated.
 
     The plant is a smooth ``G = 1e-5 / (1 + j f / 300)`` m/A on every radial output, the coil current ``1 + lever_current``.
+    The log states the noise it was drawn with, or with ``stated_dof``, an estimate of it with that many degrees of
+    freedom (as a stepped sine states it from the DFT lines beside the excitation line: 4).
     """
     rng = np.random.default_rng(seed)
     f = np.linspace(5.0, 600.0, points)
@@ -65,6 +67,8 @@ def synthetic_log(kappa, noise, seed=0, points=60, repeat_ratio=0.5, lever_curre
         sigma = np.array([noise * (1e-5 * a if name.startswith("V2") else 0.01 * a) for name in CHANNELS])
         coefficients = coefficients + sigma * (rng.standard_normal(len(CHANNELS)) + 1j * rng.standard_normal(len(CHANNELS))) / np.sqrt(2)
         coefficients[CHANNELS.index("U2_DX")] = a  # the excitation itself known exactly
+        if stated_dof is not None:
+            sigma = sigma * np.sqrt(rng.chisquare(stated_dof, len(CHANNELS)) / stated_dof)
         return {"excited_axis": "DX", "step": int(k), "frequency_hz": float(f[k]), "amplitude_a": float(a),
                 "attempts": 1, "level": level, "coefficients": coefficients, "noise_std": sigma}
 
@@ -169,6 +173,30 @@ class TestZeroAmplitude:
         # complex errors: |z|^2 averages to 1 where the uncertainty is right
         assert np.mean(np.concatenate(normalized) ** 2) == pytest.approx(1.0, abs=0.25)
         assert taken > 0
+
+    def test_its_points_count_for_as_many_independent_ones_as_their_spread_shows(self):
+        """The steps between two pairs share the pairs' coefficient noise, and every point's stated variance is built
+        from estimates its neighbours share: over 60 logs, the spread of the band's chi2 per point is that of the sum
+        of its points' `effective_share` independent points, not of its 39 points (stop 48: the axial cell's 26
+        points spread as 5 and read above their chance limit on 8 of 80 rigs without a hidden effect)."""
+        per_point, stated = [], []
+        for seed in range(60):
+            frame = synthetic_log(kappa=0.004, noise=3e-3, seed=seed, points=120, stated_dof=4)
+            table = frf_from_log(frame, ZERO_AMPLITUDE)[0]
+            rows = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")
+                         & (table["frequency_hz"] < 200)]
+            f = rows["frequency_hz"].to_numpy()
+            error = (rows["re"] + 1j * rows["im"]).to_numpy() - 1e-5 / (1 + 1j * f / 300)
+            per_point.append(np.mean(np.abs(error) ** 2 / (rows["std"] ** 2 + rows["systematic_std"] ** 2)))
+            stated.append(rows["effective_share"].sum())
+        spread = (np.mean(per_point) / np.std(per_point, ddof=1)) ** 2  # the independent points the spread shows
+        assert len(f) == 39 and np.all(table["effective_share"].between(0, 1, inclusive="right"))
+        assert spread < 0.75 * len(f), spread  # fewer than the points
+        # (17.3 against 19.5; without the stated variances' shared estimates, 25.0)
+        assert np.median(stated) == pytest.approx(spread, rel=0.2), (np.median(stated), spread)
+        # the rows left at their measured value keep a share of 1
+        kept = (table["re"] == frf_from_log(frame, DESCRIBING_FUNCTION)[0]["re"]).to_numpy()
+        assert kept.any() and (table.loc[kept, "effective_share"] == 1).all()
 
     def test_point_by_point_where_the_noise_dominates_the_measured_value_stays(self, monkeypatch):
         # the rule for a channel whose pairs do not measure its amplitude dependence: 0.3 % noise against a 0.1 %
@@ -691,3 +719,27 @@ def test_the_zero_amplitude_account_leaves_out_a_row_that_reads_zero():
     row = account.iloc[0]
     assert row["zero_amplitude_points"] == 4 and row["method"] == "pairs + zero_amplitude"
     assert row["relative_median"] == pytest.approx(0.01) and row["relative_p90"] == pytest.approx(np.quantile([0.01, 0.01, 0.03], 0.9))
+
+
+def test_points_that_share_their_errors_count_as_fewer_independent_ones():
+    """`ambid.amplitude.effective_share`: m points carrying one error are one point; independent ones are one each;
+    two points correlated rho count 1 / (1 + rho^2) each; a variance estimated with nu degrees of freedom (relative
+    variance 2 / nu) makes a point count 1 / (1 + 2 / nu)."""
+    from ambid.amplitude import effective_share
+
+    block = effective_share(np.ones((4, 1), dtype=complex), np.zeros(4))
+    assert block == pytest.approx(np.full(4, 0.25))
+    assert effective_share(np.zeros((3, 1), dtype=complex), np.ones(3)) == pytest.approx(np.ones(3))
+    rho = 0.6
+    pair = effective_share(np.array([[np.sqrt(rho)], [1j * np.sqrt(rho)]]), np.full(2, np.sqrt(1 - rho)))
+    assert pair == pytest.approx(np.full(2, 1 / (1 + rho**2)))
+    estimated = effective_share(np.zeros((2, 1), dtype=complex), np.ones(2), np.diag([2 / 20, 2 / 20]))
+    assert estimated == pytest.approx(np.full(2, 1 / 1.1))
+    # Monte Carlo: m = 4 points in blocks of 2 sharing half their variance; the chi2's spread is that of sum(shares)
+    rng = np.random.default_rng(5)
+    common = rng.standard_normal((200_000, 2)) + 1j * rng.standard_normal((200_000, 2))
+    own = rng.standard_normal((200_000, 4)) + 1j * rng.standard_normal((200_000, 4))
+    errors = (np.repeat(common, 2, axis=1) + own) / 2  # unit variance, correlation 1/2 within a block
+    chi2 = np.mean(np.abs(errors) ** 2, axis=1)
+    shares = effective_share(np.kron(np.eye(2), np.ones((2, 1))) / np.sqrt(2) + 0j, np.full(4, np.sqrt(0.5)))
+    assert (np.mean(chi2) / np.std(chi2)) ** 2 == pytest.approx(shares.sum(), rel=0.02)

@@ -20,7 +20,7 @@ import yaml
 
 from ambid.channel_fit import FitError, feature_rows, fit_plant_channel, select_channels
 from ambid.cli import check_log as check_log_lines
-from ambid.compare import for_run, measured_channels
+from ambid.compare import effective_shares, for_run, measured_channels
 from ambid.diagnose import AT_FLOOR_EVIDENCE, DiagnoseSettings, diagnose
 from ambid.diagnosis_report import diagnosis_report
 from ambid.errors import LogError, settings_from_mapping
@@ -62,10 +62,12 @@ def frf_stage(path):
 def diagnosed(path, config):
     """The nominal model of ``config`` diagnosed on the log at ``path`` as rule `diagnose` does; and the coil-current
     sampling findings."""
-    measured = measured_channels(frf_stage(path))
+    table = frf_stage(path)
+    measured = measured_channels(table)
     machine, findings = for_run(machine_from_config(config, name=config["name"]), measured, {}, "diagnose")
     notes = [f for f in findings if f.code == "coil_current_sampling"]
-    return diagnose(machine, measured, settings=settings_from_mapping(DiagnoseSettings, CONFIG["diagnose"], "diagnose")), notes
+    return diagnose(machine, measured, settings=settings_from_mapping(DiagnoseSettings, CONFIG["diagnose"], "diagnose"),
+                    shares=effective_shares(table)), notes
 
 
 @pytest.mark.parametrize("effects, named", [([], None), ([{"name": "amplifier_lowpass", "cutoff_hz": 2500.0}],

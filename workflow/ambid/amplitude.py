@@ -58,17 +58,22 @@ the interpolation's error already counts, and the stated noise stays.  This is b
 """
 
 import numpy as np
+import scipy.special
 
-from .floor import excitation_amplitude_squared, family_of, level_pairs, resolved, resonance_ratio
+from .floor import (FloorSettings, excitation_amplitude_squared, family_of, level_pairs, local_fits, resolved,
+                    resonance_ratio)
 from .logs import run_matrix
 from .machine import RADIAL_AXES
 
 __all__ = ["MEASURED_KAPPA", "AMPLITUDE_ERROR_ALIKE", "amplitude_dependence", "pair_noise_factor", "zero_amplitude",
-           "account_zero_amplitude"]
+           "account_zero_amplitude", "effective_share"]
 
 #: Library effects the describing function's amplitude-dependent error reads like (stop 30: the leads of centred rigs
 #: without zero amplitude): what a diagnosis of a run without repeated steps may name for it.
 AMPLITUDE_ERROR_ALIKE = ("actuator_coefficients", "noncollocation")
+
+#: Degrees of freedom of one step's noise variance (the two DFT lines beside its excitation line, `ambid.floor`).
+NOISE_DOF = 4
 
 #: A channel's amplitude dependence is measured where its pairs put it this many standard deviations from zero
 #: (`amplitude_dependence`).
@@ -115,6 +120,18 @@ def pair_noise_factor(log_frequency, kappa, variance):
     return max(1.0, float(np.median(np.abs(residual) ** 2 / stated)) / np.log(2))
 
 
+def _bracket(log_frequency, repeated):
+    """Each point's repeated points either side (indices into ``repeated``) and its weight ``w`` on the right one.
+
+    Linear in ``log_frequency`` between them; beyond the ends, the nearest one (``w`` 0 or 1).
+    """
+    x = log_frequency[repeated]
+    right = np.clip(np.searchsorted(x, log_frequency), 1, x.size - 1)
+    left = right - 1
+    weight = np.clip((log_frequency - x[left]) / np.maximum(x[right] - x[left], 1e-12), 0.0, 1.0)
+    return left, right, weight
+
+
 def _interpolated(log_frequency, repeated, coefficient, variance):
     """A coefficient, its noise variance and its interpolation error at every point of one channel.
 
@@ -124,10 +141,8 @@ def _interpolated(log_frequency, repeated, coefficient, variance):
     beyond the ends).
     """
     x = log_frequency[repeated]
-    right = np.clip(np.searchsorted(x, log_frequency), 1, x.size - 1)
-    left = right - 1
+    left, right, weight = _bracket(log_frequency, repeated)
     spacing = np.maximum(x[right] - x[left], 1e-12)
-    weight = np.clip((log_frequency - x[left]) / spacing, 0.0, 1.0)
     value = (1 - weight) * coefficient[left] + weight * coefficient[right]
     noise = (1 - weight) ** 2 * variance[left] + weight**2 * variance[right]
     # linear interpolation errs by w (1 - w) h^2 kappa'' / 2 at the fraction w of a spacing h; each interior pair's
@@ -258,7 +273,7 @@ def _structured_zero(channel, inversion, measured, noise):
     return measured - error, np.sqrt(variance), np.hypot(systematic, departure * np.abs(error))
 
 
-def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_pairs=5, max_ratio=0.9):
+def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, settings=None, max_ratio=0.9):
     """The FRF table at zero excitation amplitude: every point of a channel whose amplitude dependence is measured, else
     where that estimate is the more accurate one.
 
@@ -274,8 +289,10 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     noise_scale : array, optional
         Per row of ``table``: the factor `ambid.floor.systematic_floor` scaled its
         noise by (the scatter between steps); the repeats' noise takes the same.
-    min_pairs : int
-        Repeated steps a channel needs.
+    settings : ambid.floor.FloorSettings, optional
+        ``min_pairs`` (the repeated steps a channel needs), and how the noise was
+        pooled (``noise_half_width``) and scaled (``scatter_half_width``,
+        ``smooth_half_width``), for the rows' ``effective_share``.
     max_ratio : float
         Pairs whose amplitudes' squared ratio ``A_1^2 / A^2`` exceeds this carry
         no information on the amplitude dependence and are left out.
@@ -285,11 +302,15 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     table : pandas.DataFrame
         A copy; rows that take the zero-amplitude estimate have it in ``re``,
         ``im``, ``std`` (propagated noise) and ``systematic_std`` (interpolation
-        error; 0 at repeated steps).
+        error; 0 at repeated steps) and its ``effective_share`` (`effective_share`:
+        the steps between two pairs share their noise); the others keep theirs (1
+        from `ambid.frf.frf_table`: the sharing of their pooled noise estimates is
+        not counted).
     extrapolated : numpy.ndarray of bool
         Which rows took it.
     """
     table = table.copy()
+    settings = settings or FloorSettings()
     extrapolated = np.zeros(len(table), dtype=bool)
     if low_table is None or low_table.empty:
         return table, extrapolated
@@ -302,9 +323,11 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
     scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
     frequency_all = table["frequency_hz"].to_numpy()
     new_values, new_noise, new_systematic = values.copy(), noise.copy(), systematic.copy()
+    shares = (table["effective_share"].to_numpy(dtype=float, copy=True) if "effective_share" in table
+              else np.ones(len(table)))
     channels = {}
     for key, (rows, repeated, low) in level_pairs(table, low_table, square, low_square, max_ratio).items():
-        if repeated.size < min_pairs:
+        if repeated.size < settings.min_pairs:
             continue
         frequency, high = frequency_all[rows], rows[repeated]
         lever = 1.0 / (1.0 - low_square[low] / square[high])  # lambda = A^2 / (A^2 - A_1^2)
@@ -326,8 +349,15 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
         ratio = resonance_ratio(frequency, np.abs(values[rows]), frequency[repeated])
         relative_error = np.hypot(k_error, np.abs(k) * np.abs(ratio - 1)) * a2
         k_variance[repeated] = variance  # the pairs' own: `_mimo_inversion_errors` reads it, their own value does not
+        # each pair's level-0 and level-1 noise (unit sources xi, eta) in its coefficient, delta kappa = (z dg - g dz)
+        # / (z^2 A^2) = lambda (g1 dg - g dg1) / (z^2 A^2), and in its own zero-amplitude value, (1 - lambda) dg
+        # + lambda dg1
+        to_kappa = lever / (zero_repeated**2 * square[high])
         channels[key] = dict(
             rows=rows, frequency=frequency, repeated=repeated, measured=measured,
+            bracket=_bracket(np.log(frequency), repeated), amplitude_squared=a2,
+            kappa_sources=np.stack([to_kappa * g1 * s, -to_kappa * g * s1], axis=1),
+            zero_sources=np.stack([(1 - lever) * s, lever * s1], axis=1),
             correction=k * a2, correction_variance=k_variance * a2**2, relative_error=relative_error,
             zero_repeated=zero_repeated, zero_repeated_noise=np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2),
             pair_change=lever * (g - g1), pair_change_variance=lever**2 * (s**2 + s1**2))
@@ -354,9 +384,135 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, min_p
         chosen = rows[better]
         new_values[chosen], new_noise[chosen], new_systematic[chosen] = zero[better], zero_noise[better], zero_systematic[better]
         extrapolated[chosen] = True
+        if structured is None and better.any():  # (a row left as measured keeps its share, as every other channel's)
+            shares[chosen] = effective_share(*_shared_errors(channel, better, zero, noise[rows], zero_systematic,
+                                                             scale[rows], settings))[better]
     table["re"], table["im"] = new_values.real, new_values.imag
     table["std"], table["systematic_std"] = new_noise, new_systematic
+    table["effective_share"] = shares
     return table, extrapolated
+
+
+def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settings):
+    """What one channel's points at zero amplitude share: their errors, and the errors of their stated noise.
+
+    A step between two pairs takes their interpolated coefficient, ``(1 - w)
+    kappa_L + w kappa_R``, and with it their noise: ``dG_0 = dG / (1 + c) - G_0
+    A^2 ((1 - w) d kappa_L + w d kappa_R)``; a repeated step's own value shares
+    its pair's.  Points that keep their measured value (not ``chosen``) share
+    nothing of that.  The stated variance of every point is a sum of the steps'
+    noise estimates (`ambid.floor.pooled_noise`: each `NOISE_DOF` degrees of
+    freedom, the mean over ``2 half_width + 1`` neighbours of its level), so
+    points whose variances draw on one estimate share its error too, and so do
+    the points whose noise `ambid.floor.systematic_floor` scaled down to the
+    scatter of the neighbouring steps (``noise_scale`` below 1: a mean of
+    `ambid.floor.smooth_fit_ratio`'s ``|r_k|^2 / s_k^2`` over ``2
+    scatter_half_width + 1`` steps, of relative variance 1 each, and two of them
+    covary by ``|rho|^2`` of their residuals, which overlapping local fits
+    correlate, and by their noise estimates).
+
+    Returns
+    -------
+    shared : numpy.ndarray
+        ``(n, 2 p)`` complex: each point's error in the ``p`` pairs' level-0 and level-1 noise (unit sources).
+    alone : numpy.ndarray
+        ``(n,)``: the standard deviation of what is each point's own (its noise, its systematic error).
+    estimate : numpy.ndarray
+        ``(n, n)``: the covariance of the points' stated variances' relative errors.
+    """
+    left, right, weight = channel["bracket"]
+    repeated, sources = channel["repeated"], channel["kappa_sources"]
+    n, pairs = zero.size, sources.shape[0]
+    points = np.arange(n)
+    scale = -zero * channel["amplitude_squared"]
+    shared = np.zeros((n, pairs, 2), dtype=complex)
+    shared[points, left] += ((1 - weight) * scale)[:, None] * sources[left]
+    shared[points, right] += (weight * scale)[:, None] * sources[right]
+    own = np.abs(noise / (1 + channel["correction"])) ** 2
+    own[repeated] = 0.0
+    shared[repeated] = 0.0
+    shared[repeated, np.arange(pairs)] = channel["zero_sources"]
+    own[~chosen], shared[~chosen] = noise[~chosen] ** 2, 0.0
+    # each point's variance in the level-0 estimates (at every step) and the level-1 ones (at every pair)
+    level0, level1 = np.diag(own), np.zeros((n, pairs))
+    level0[:, repeated] += np.abs(shared[:, :, 0]) ** 2
+    level1 += np.abs(shared[:, :, 1]) ** 2
+    variance = level0.sum(axis=1) + level1.sum(axis=1) + systematic**2
+    variance = np.where(variance > 0, variance, 1.0)
+    level0, level1 = level0 / variance[:, None], level1 / variance[:, None]
+    half_width = settings.noise_half_width
+    estimate = (level0 @ _pooled_covariance(n, half_width) @ level0.T
+                + level1 @ _pooled_covariance(pairs, half_width) @ level1.T)
+    # the scale: a running mean of the ratios |r_k|^2 / s_k^2 of the steps whose local fit is centred on them; two
+    # ratios covary by |rho_kl|^2 of their residuals (overlapping fits) and by their noise estimates
+    centred = np.zeros(n)
+    centred[settings.smooth_half_width: n - settings.smooth_half_width] = 1.0
+    mean = (np.abs(np.subtract.outer(points, points)) <= settings.scatter_half_width) * centred[None, :]
+    mean /= np.maximum(mean.sum(axis=1, keepdims=True), 1.0)
+    fits = np.zeros((n, n))
+    for k, (window, j, hat) in enumerate(local_fits(channel["frequency"], settings.smooth_half_width)):
+        fits[k, window] = -hat
+        fits[k, k] += 1.0
+    residual = fits @ fits.T
+    spread = np.sqrt(np.clip(residual.diagonal(), 1e-300, None))
+    ratios = (residual / spread[:, None] / spread[None, :]) ** 2 + _pooled_covariance(n, half_width)
+    scale_covariance = mean @ ratios @ mean.T
+    # the scale is the mean clipped at 1: a mean near 1 is clipped as often as not, and its error with it; each point's
+    # noise share counts as often as its mean, normal about the scale squared, falls below 1
+    below = scipy.special.ndtr((1 - noise_scale**2) / np.sqrt(np.clip(scale_covariance.diagonal(), 1e-300, None)))
+    scaled = np.sqrt(below) * (noise_scale < 1) * (level0.sum(axis=1) + level1.sum(axis=1))
+    estimate += np.outer(scaled, scaled) * scale_covariance
+    return shared.reshape(n, 2 * pairs), np.hypot(np.sqrt(own), systematic), estimate
+
+
+def _pooled_covariance(steps, half_width):
+    """Covariance of the relative errors of `ambid.floor.pooled_noise`'s variances along ``steps`` steps of one level.
+
+    Each pooled variance is the mean of ``W = 2 half_width + 1`` estimates of
+    `NOISE_DOF` degrees of freedom (relative variance ``2 / NOISE_DOF``); two
+    steps ``d`` apart share ``W - d`` of them.  The ends, which pool fewer, are
+    taken as the others.
+    """
+    window = 2 * half_width + 1
+    distance = np.abs(np.subtract.outer(np.arange(steps), np.arange(steps)))
+    return (2.0 / NOISE_DOF) * np.clip(window - distance, 0, None) / window**2
+
+
+def effective_share(shared, alone, estimate=None):
+    """Each point's share of an independent point at the floor: ``1 / sum_j (|rho_ij|^2 + c_ij)``.
+
+    A cell's ``chi2 = sum |e_i|^2 / s_i^2`` over points whose errors correlate
+    (``rho``) and whose stated variances ``s^2`` are estimates with correlated
+    relative errors (covariance ``c``) has the mean of ``n`` independent points
+    and, to first order, the variance ``sum_ij (|rho_ij|^2 + c_ij)``:
+    Satterthwaite's ``n_eff = n^2 / sum_ij (...)`` independent points.  A point's
+    share counts the points whose noise or noise estimate it shares, so a cell's
+    effective points are the sum of its points' shares (exact where points share
+    in blocks).  Beyond the thesis.
+
+    Parameters
+    ----------
+    shared : numpy.ndarray
+        ``(n, m)`` complex: each point's error in ``m`` independent unit sources.
+    alone : numpy.ndarray
+        ``(n,)``: the standard deviation of each point's error that no other point shares.
+    estimate : numpy.ndarray, optional
+        ``(n, n)``: covariance of the relative errors of the points' stated variances (none: known variances).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n,)`` in ``(0, 1]``; 1 where a point shares nothing and its variance is known.
+    """
+    covariance = shared @ shared.conj().T
+    variance = covariance.diagonal().real + np.asarray(alone, dtype=float) ** 2
+    covariance[np.diag_indices_from(covariance)] = variance
+    scale = np.sqrt(np.where(variance > 0, variance, 1.0))
+    correlation = np.abs(covariance / scale[:, None] / scale[None, :]) ** 2
+    correlation[np.diag_indices_from(correlation)] = 1.0
+    if estimate is not None:
+        correlation += estimate
+    return 1.0 / correlation.sum(axis=1)
 
 
 def account_zero_amplitude(floors, table, extrapolated):

@@ -38,8 +38,9 @@ from .machine import ALL_AXES, AXIAL_AXIS, COIL_CURRENT_SAMPLING, RADIAL_AXES
 from .findings import Finding
 from .plant import Plant, zoh_discretize
 
-__all__ = ["CompareError", "measured_channels", "model_response", "model_channels", "channel_errors", "summarize",
-           "current_channel", "channel_family", "truncation_error", "enough_modes", "with_enough_modes", "at_run_level",
+__all__ = ["CompareError", "measured_channels", "effective_shares", "model_response", "model_channels",
+           "channel_errors", "summarize", "current_channel", "channel_family", "truncation_error", "enough_modes",
+           "with_enough_modes", "at_run_level",
            "for_run", "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
 
 
@@ -89,15 +90,9 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
     """
     if position_floor < 0 or current_floor < 0:
         raise CompareError(f"relative floors must be >= 0, got {position_floor}, {current_floor}")
-    logged = set(table[["estimator", "output", "input"]].itertuples(index=False, name=None))
-    radial = "mimo" if any(row[0] == "mimo" for row in logged) else "siso"
-    wanted = [(radial, o, i) for o in RADIAL_AXES for i in RADIAL_AXES if radial == "mimo" or o == i]
-    wanted += [("siso", AXIAL_AXIS, AXIAL_AXIS)] + [("current", a, a) for a in ALL_AXES]
-    wanted = [row for row in wanted if row in logged]
     out = {}
-    for estimator, output, input_axis in wanted:
+    for key, (estimator, output, input_axis) in _compared(table).items():
         frequency, values, std, systematic = channel(table, estimator, output, input_axis, systematic=True)
-        key = (current_channel(output) if estimator == "current" else output, input_axis)
         floor = current_floor if estimator == "current" else position_floor
         systematic = np.where(np.isfinite(systematic), systematic, floor * np.abs(values))
         combined = np.hypot(std, systematic)
@@ -110,6 +105,38 @@ def measured_channels(table, position_floor=0.0, current_floor=0.0):
         out[key] = (frequency, values, combined)
     if not out:
         raise CompareError("the FRF table holds no channel to compare")
+    return out
+
+
+def _compared(table):
+    """The table's channels `measured_channels` compares: ``(output, input) -> (estimator, output, input)``."""
+    logged = set(table[["estimator", "output", "input"]].itertuples(index=False, name=None))
+    radial = "mimo" if any(row[0] == "mimo" for row in logged) else "siso"
+    wanted = [(radial, o, i) for o in RADIAL_AXES for i in RADIAL_AXES if radial == "mimo" or o == i]
+    wanted += [("siso", AXIAL_AXIS, AXIAL_AXIS)] + [("current", a, a) for a in ALL_AXES]
+    return {(current_channel(row[1]) if row[0] == "current" else row[1], row[2]): row
+            for row in wanted if row in logged}
+
+
+def effective_shares(table):
+    """Each point's share of an independent point, channel by channel as `measured_channels` gives them.
+
+    The FRF table's ``effective_share`` (`ambid.amplitude.effective_share`: below
+    1 where the extrapolation to zero amplitude makes points share their repeats'
+    noise), 1 where the table has none (a table of another writer).  What a cell
+    of the diagnosis counts for its chance limit (`ambid.diagnose.chance_limit`).
+
+    Returns
+    -------
+    dict
+        ``(output, input) -> shares``, in frequency order.
+    """
+    out = {}
+    for key, (estimator, output, input_axis) in _compared(table).items():
+        share = channel(table, estimator, output, input_axis, share=True)[-1]
+        if not np.all((share > 0) & (share <= 1)):
+            raise CompareError(f"channel {estimator} {output}/{input_axis}: effective_share must be in (0, 1]")
+        out[key] = share
     return out
 
 

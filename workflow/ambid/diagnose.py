@@ -11,7 +11,10 @@ currents) and frequency band (`ambid.floor.frequency_bands` of the measured
 grid): a cell is *above the floor* when its ``chi2`` per point exceeds
 ``max(limit, chance_limit(n))`` (``limit`` 1.5: the band the true model keeps on
 a rig whose floor is measured; `chance_limit`: what ``n`` points at the floor
-exceed by chance, the 3-sigma tail of their Gamma distribution).  Where no cell is above the floor, a candidate
+exceed by chance, the 3-sigma tail of their Gamma distribution; ``n`` the sum of
+the points' effective shares, `ambid.compare.effective_shares`: points of a
+channel extrapolated to zero amplitude share their repeats' noise and noise
+estimates, and count for fewer independent ones).  Where no cell is above the floor, a candidate
 must earn `AT_FLOOR_EVIDENCE` channel by channel (below) to be missing, whatever it would gain from fitting the
 noise.  The misfit the chosen effects leave is also read per output row over all bands (`_Cells`): one
 sensor's gain error is spread over every band, and a band pools four sensors.
@@ -120,7 +123,7 @@ class DiagnoseSettings:
     min_share : float
         Share of the excess above the floor a missing effect must remove.
     floor_limit : float
-        ``chi2`` per point above which a cell is above the floor (at least `chance_limit` of its points).
+        ``chi2`` per point above which a cell is above the floor (at least `chance_limit` of its effective points).
     determined_std : float
         Relative standard deviation below which a parameter counts as determined.
     prior_width : float
@@ -287,7 +290,7 @@ class _Cells:
     physics it does.
     """
 
-    def __init__(self, measured, min_points=20):
+    def __init__(self, measured, min_points=20, shares=None):
         families, outputs = {}, {}
         for key, (frequency, _, _) in measured.items():
             family = channel_family(key[0])
@@ -326,6 +329,18 @@ class _Cells:
         self._in_row = self.row_index >= 0
         self.rows = np.array([name[2] != "all" for name in names])
         self.points = self._count(np.ones(self.index.size))
+        # what the points count for the chance limit: the sum of their shares of an independent point
+        share = [np.ones(f.size) if shares is None or key not in shares else np.asarray(shares[key], dtype=float)
+                 for key, (f, _, _) in measured.items()]
+        for key, (f, _, _), s in zip(measured, measured.values(), share):
+            if s.shape != f.shape or not np.all((s > 0) & (s <= 1)):
+                raise DiagnoseError(f"channel {key[0]}/{key[1]}: each point's effective share must be in (0, 1], one "
+                                    f"per point ({s.size} for {f.size} points)")
+        self.effective = self._count(np.concatenate(share))
+
+    def limit(self, limit):
+        """Each cell's ``chi2`` per point above the floor: ``max(limit, chance_limit)`` of its effective points."""
+        return np.maximum(limit, chance_limit(self.effective))
 
     def _count(self, weights):
         size = len(self.names)
@@ -337,8 +352,8 @@ class _Cells:
         return self._count(np.abs(residual) ** 2) / self.points
 
     def above(self, per_point, limit, rows=False):
-        """Cells above the floor: ``chi2`` per point beyond ``max(limit, chance_limit(n))``; the rows only if ``rows``."""
-        return (per_point > np.maximum(limit, chance_limit(self.points))) & (rows | ~self.rows)
+        """Cells above the floor: ``chi2`` per point beyond their `limit`; the rows only if ``rows``."""
+        return (per_point > self.limit(limit)) & (rows | ~self.rows)
 
     def channel_evidence(self, before, after, parameters):
         """`bic_evidence` of a candidate taking the residual ``before`` to ``after``, each channel and band weighed by
@@ -375,7 +390,8 @@ class _Cells:
         bands_above = {f for f, a, row in zip(family, above, self.rows) if a and not row}
         above &= ~(self.rows & np.isin(family, list(bands_above)))
         return pd.DataFrame({"family": family, "band": [n[1] for n in self.names], "output": [n[2] for n in self.names],
-                             "points": self.points.astype(int), "chi2_per_point": per_point, "above_floor": above})
+                             "points": self.points.astype(int), "effective_points": self.effective,
+                             "limit": self.limit(limit), "chi2_per_point": per_point, "above_floor": above})
 
 
 #: The chance of a cell at the floor reading above its `chance_limit`: the normal distribution's 3-sigma tail.
@@ -401,10 +417,10 @@ def cell_name(cell):
     return f"{cell.family} {cell.band}" if cell.output == "all" else f"{cell.family} output {cell.output} (all bands)"
 
 
-def misfit_cells(measured, predicted, limit=1.5):
+def misfit_cells(measured, predicted, limit=1.5, shares=None):
     """``chi2`` per point of every channel family and band, and whether it is above the floor (`diagnose`)."""
     _, residual = misfit(measured, predicted)
-    return _Cells(measured).frame(residual, limit)
+    return _Cells(measured, shares=shares).frame(residual, limit)
 
 
 def misfit_peaks(measured, residual, count=4):
@@ -1510,7 +1526,7 @@ def _prune(machine, measured, chosen, settings, cells, joint, alternatives=()):
     return kept, joint, tuple(dropped)
 
 
-def diagnose(machine, measured, candidates=None, settings=None, alternatives=(), **overrides):
+def diagnose(machine, measured, candidates=None, settings=None, alternatives=(), shares=None, **overrides):
     """Fit every candidate effect on top of ``machine``, choose the missing ones, refit them jointly.
 
     Parameters
@@ -1526,6 +1542,9 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     alternatives : sequence of (str, sequence of Effect)
         Other starts for the refits of the variant's own parameters (`joint_refit`): the diagnosed run's own update
         where the variant takes another run's.
+    shares : dict, optional
+        `ambid.compare.effective_shares` of the run: what its points count for each cell's chance limit (none:
+        every point an independent one).
 
     Returns
     -------
@@ -1536,7 +1555,7 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     settings = replace(settings or DiagnoseSettings(), **overrides)
     if not measured:
         raise DiagnoseError("no measured channel to diagnose")
-    cells = _Cells(measured)
+    cells = _Cells(measured, shares=shares)
     residual = _Evaluator(Plant(machine), measured, cells).residual(())
     chi2 = float(np.vdot(residual, residual).real)
     cells_before = cells.frame(residual, settings.floor_limit)

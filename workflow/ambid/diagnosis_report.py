@@ -143,7 +143,10 @@ def _marked_bounds(fitted):
 
 
 def _cells_text(cells):
-    return ", ".join(f"{cell_name(r)} (chi2 per point {r.chi2_per_point:.3g}, {r.points} points)"
+    """Cells in words: chi2 per point against their limit, and their points (what they count for, where fewer)."""
+    return ", ".join(f"{cell_name(r)} (chi2 per point {r.chi2_per_point:.3g} against {r.limit:.3g}, {r.points} points"
+                     + (f" counting as {r.effective_points:.{0 if r.effective_points >= 100 else 1}f} independent"
+                        if r.effective_points < 0.95 * r.points else "") + ")"
                      for r in cells.sort_values("chi2_per_point", ascending=False).itertuples())
 
 

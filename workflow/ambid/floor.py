@@ -65,8 +65,8 @@ from .machine import AXIAL_AXIS, RADIAL_AXES
 
 __all__ = ["FAMILIES", "RESOLVED", "resolved", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
-           "resonance_ratio", "smooth_fit_ratio", "channel_smooth_fit_ratio", "pooled_noise", "pool_variance",
-           "systematic_floor"]
+           "resonance_ratio", "local_fits", "smooth_fit_ratio", "channel_smooth_fit_ratio", "pooled_noise",
+           "pool_variance", "systematic_floor"]
 
 _KEYS = ["estimator", "output", "input"]
 
@@ -332,30 +332,42 @@ def resonance_ratio(frequency_hz, magnitude, pair_frequency_hz):
     return np.maximum(magnitude, tiny) / np.exp(line)
 
 
-def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
-    """Residual of a local polynomial fit against its noise: ``|e_k|^2 / (std_k^2 (1 - h_kk))`` per point.
+def local_fits(frequency_hz, half_width=3, order=2):
+    """`smooth_fit_ratio`'s local fits: per point, its window and the fit's hat-matrix row at it.
 
-    A complex polynomial of degree ``order`` is fitted to the ``2 half_width + 1``
-    points around each point (shifted at the ends); ``h_kk`` is the hat-matrix
-    diagonal, so the ratio is exponentially distributed with mean 1 where the
-    FRF is smooth and the noise is all there is.
+    A complex polynomial of degree ``order`` fitted to the ``2 half_width + 1``
+    points around each point (shifted at the ends).  Returns a list of ``(window,
+    j, hat_row)``: the slice, the point's place in it and the row of the hat matrix
+    there (the fitted value is ``hat_row @ values[window]``); empty where the grid
+    is shorter than a window.
     """
     f = np.asarray(frequency_hz, dtype=float)
     n = f.size
     width = 2 * half_width + 1
-    ratio = np.full(n, np.nan)
     if n < width:
-        return ratio
+        return []
+    fits = []
     for k in range(n):
         start = min(max(k - half_width, 0), n - width)
         window = slice(start, start + width)
         x = (f[window] - f[k]) / max(f[window][-1] - f[window][0], 1e-12)
         basis = np.vander(x, order + 1)
-        pinv = np.linalg.pinv(basis)
-        hat = basis @ pinv
-        j = k - start
-        residual = values[window][j] - (hat[j] @ values[window])
-        leverage = 1.0 - hat[j, j]
+        fits.append((window, k - start, (basis @ np.linalg.pinv(basis))[k - start]))
+    return fits
+
+
+def smooth_fit_ratio(frequency_hz, values, std, half_width=3, order=2):
+    """Residual of a local polynomial fit against its noise: ``|e_k|^2 / (std_k^2 (1 - h_kk))`` per point.
+
+    A complex polynomial of degree ``order`` is fitted to the ``2 half_width + 1``
+    points around each point (shifted at the ends, `local_fits`); ``h_kk`` is the
+    hat-matrix diagonal, so the ratio is exponentially distributed with mean 1
+    where the FRF is smooth and the noise is all there is.
+    """
+    ratio = np.full(np.asarray(frequency_hz).size, np.nan)
+    for k, (window, j, hat) in enumerate(local_fits(frequency_hz, half_width, order)):
+        residual = values[window][j] - (hat @ values[window])
+        leverage = 1.0 - hat[j]
         ratio[k] = np.abs(residual) ** 2 / (std[k] ** 2 * leverage) if std[k] > 0 else np.nan
     return ratio
 

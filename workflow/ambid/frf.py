@@ -33,7 +33,8 @@ from .logs import CHANNELS, has_coil_currents, noise_from_scatter, repeated_step
 from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
-__all__ = ["log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "FrfStage", "frf_stage",
+__all__ = ["FRF_UNITS", "log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "FrfStage",
+           "frf_stage",
            "channel", "radial_estimator"]
 
 
@@ -158,10 +159,18 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
     return frequency, plant, np.sqrt(variance), np.linalg.cond(inputs)
 
 
+#: Units of the `frf_table` columns, as the FRF rules write them.
+FRF_UNITS = {"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)", "std": "m/A (A/A: current)",
+             "systematic_std": "m/A (A/A: current)", "condition": "-",
+             "effective_share": "- (share of an independent point)"}
+
+
 def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     """Long-format FRF table: ``estimator`` (siso / mimo / current), ``output``, ``input``, ``frequency_hz``,
     ``re``, ``im``, ``std`` (noise) [m/A; A/A for ``current``], ``condition`` (of U, MIMO only) and
-    ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it)."""
+    ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it) and ``effective_share`` (1 here: the
+    share of an independent point a row's error carries, below 1 where `ambid.amplitude.zero_amplitude` makes rows
+    share their repeats' noise)."""
     parts = []
     for (output, input_axis), (frequency, a, std) in (current or {}).items():
         parts.append(pd.DataFrame({"estimator": "current", "output": output, "input": input_axis, "frequency_hz": frequency,
@@ -176,7 +185,7 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
                 parts.append(pd.DataFrame({"estimator": "mimo", "output": output, "input": input_axis, "frequency_hz": frequency,
                                            "re": plant[:, i, j].real, "im": plant[:, i, j].imag, "std": std[:, i, j],
                                            "condition": condition}))
-    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan)
+    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan, effective_share=1.0)
 
 
 def frf_from_log(frame, floor_settings=None, source="identification log", estimator="mimo"):
@@ -225,8 +234,7 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     if settings.zero_amplitude and low is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = table["std"].to_numpy() / measured["std"].to_numpy()
-        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0),
-                                             settings.min_pairs)
+        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0), settings)
     floors = account_zero_amplitude(floors, table, extrapolated).assign(
         noise_pooled_steps=2 * settings.noise_half_width + 1)
     return table, floors, mimo
@@ -291,10 +299,11 @@ def radial_estimator(table):
     return "mimo" if (table["estimator"] == "mimo").any() else "siso"
 
 
-def channel(table, estimator, output, input_axis, systematic=False):
+def channel(table, estimator, output, input_axis, systematic=False, share=False):
     """Frequencies, complex values and standard deviations of one channel of an `frf_table`.
 
-    With ``systematic``, also the ``systematic_std`` (NaN where the table has none).
+    With ``systematic``, also the ``systematic_std`` (NaN where the table has none); with ``share``, also the
+    ``effective_share`` (1 where the table has none).
     """
     rows = table[(table["estimator"] == estimator) & (table["output"] == output) & (table["input"] == input_axis)]
     rows = rows.sort_values("frequency_hz")
@@ -302,4 +311,7 @@ def channel(table, estimator, output, input_axis, systematic=False):
     if systematic:
         extra = rows["systematic_std"].to_numpy() if "systematic_std" in rows.columns else np.full(len(rows), np.nan)
         out += (extra,)
+    if share:
+        out += (rows["effective_share"].to_numpy(dtype=float) if "effective_share" in rows.columns
+                else np.ones(len(rows)),)
     return out

@@ -4,7 +4,7 @@ import numpy as np
 
 from ambid.bla import distortion_levels, excitation_covariance, line_levels, multisine_frf, multisine_passes
 from ambid.floor import FloorSettings
-from ambid.frf import channel, radial_estimator
+from ambid.frf import FRF_UNITS, channel, radial_estimator
 from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import read_multisine_log
 from ambid.machine import ALL_AXES, RADIAL_AXES
@@ -37,17 +37,15 @@ excitation = excitation_covariance(coarse["spectra"], coarse["reference"])
 log.info("coarse pass, top level, rms %s / position / correlation: %s", "coil current" if coil_currents else "U2",
          "; ".join(f"{a} {np.sqrt(i):.3f} A, {1e6 * np.sqrt(x):.2f} um, {c / np.sqrt(max(i * x, 1e-300)):+.2f}"
                    for a, (i, x, c) in excitation.items()))
-write_parquet(table, snakemake.output.frf,
-              units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
-                     "std": "m/A (A/A: current)", "systematic_std": "m/A (A/A: current)", "condition": "-"},
-              kind="frf", metadata={"machine": machine, "run": run, "source_log": snakemake.input.log,
-                                    "method": "multisine", "estimators": sorted(set(table["estimator"])),
-                                    "std": "noise of the BLA (scatter between periods)",
-                                    "systematic_std": "nonlinear distortion of the BLA (scatter between realizations "
-                                                      "and the change between excitation levels)",
-                                    "excitation_covariance": excitation,
-                                    "excitation_current": "coil" if coil_currents else "U2",
-                                    "noise_pooled_lines": 2 * floor_settings.noise_half_width + 1})
+write_parquet(table, snakemake.output.frf, units=FRF_UNITS, kind="frf",
+              metadata={"machine": machine, "run": run, "source_log": snakemake.input.log,
+                        "method": "multisine", "estimators": sorted(set(table["estimator"])),
+                        "std": "noise of the BLA (scatter between periods)",
+                        "systematic_std": "nonlinear distortion of the BLA (scatter between realizations "
+                                          "and the change between excitation levels)",
+                        "excitation_covariance": excitation,
+                        "excitation_current": "coil" if coil_currents else "U2",
+                        "noise_pooled_lines": 2 * floor_settings.noise_half_width + 1})
 excited_axes = [a for k, a in enumerate(ALL_AXES) if coarse["excites"][:, k].any()]
 levels = distortion_levels(coarse["spectra"], coarse["role"], coarse["frequency_hz"], coarse["excites"], axes=excited_axes)
 write_tsv(levels, snakemake.output.distortion)

@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from ambid.compare import for_run, measured_channels, model_response
+from ambid.compare import effective_shares, for_run, measured_channels, model_response
 from ambid.diagnose import JOINT_COLUMNS, DiagnoseSettings, diagnose, plant_with_effects
 from ambid.diagnosis_report import diagnosis_findings, diagnosis_report
 from ambid.errors import settings_from_mapping
@@ -27,7 +27,7 @@ alternatives = ()
 if "run_update" in snakemake.input.keys():  # the variant takes another run's update: the refit also starts from this one's
     update = machine_from_config(read_yaml(snakemake.input.run_update), name=machine_name, source=snakemake.input.run_update)
     alternatives = ((f"run {run}'s own update", [e for e in update.effects if e.name in UPDATED_EFFECTS]),)
-diagnosis = diagnose(machine, measured, settings=settings, alternatives=alternatives)
+diagnosis = diagnose(machine, measured, settings=settings, alternatives=alternatives, shares=effective_shares(table))
 plant = Plant(machine)
 model = model_response(plant, measured)
 candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}",
@@ -35,7 +35,8 @@ candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machin
 write_tsv(candidates, snakemake.output.candidates)
 write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame(columns=list(JOINT_COLUMNS)),
           snakemake.output.joint)
-write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=["family", "band", "output", "points"], suffixes=("_before", "_after")),
+cell_keys = ["family", "band", "output", "points", "effective_points", "limit"]
+write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=cell_keys, suffixes=("_before", "_after")),
           snakemake.output.cells)
 write_findings(run_findings + diagnosis_findings(diagnosis), snakemake.output.findings)
 write_tsv([diagnosis.summary()], snakemake.output.verdict)

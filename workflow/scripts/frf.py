@@ -7,7 +7,7 @@ from ambid.amplitude import AMPLITUDE_ERROR_ALIKE
 from ambid.errors import LogError
 from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
-from ambid.frf import channel, frf_stage
+from ambid.frf import FRF_UNITS, channel, frf_stage
 from ambid.io import rule_log, write_parquet, write_tsv
 from ambid.logs import log_source, read_identification_log
 from ambid.machine import RADIAL_AXES
@@ -78,11 +78,9 @@ if repeated == 0:
                             0.0))
 write_findings(findings, snakemake.output.findings)
 estimators = sorted(set(table["estimator"]))
-write_parquet(table, snakemake.output.frf, units={"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)",
-                                                        "std": "m/A (A/A: current)", "condition": "-",
-                                                        "systematic_std": "m/A (A/A: current)"},
-              kind="frf", metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                                    "source_log": source, "estimators": estimators, "repeated_steps": repeated})
+write_parquet(table, snakemake.output.frf, units=FRF_UNITS, kind="frf",
+              metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
+                        "source_log": source, "estimators": estimators, "repeated_steps": repeated})
 write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
