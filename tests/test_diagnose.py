@@ -170,6 +170,20 @@ def test_a_candidate_masked_by_a_larger_misfit_is_searched_afresh():
     assert joint.loc["amplifier_lowpass.cutoff_hz", "value"] == pytest.approx(5776.0, rel=0.01)
 
 
+def test_a_weaker_effect_beside_one_that_brings_the_model_to_the_floor_is_still_searched():
+    """demo20 with a 6809 Hz current loop and its design elements 0.11 % softer (the suite's draw 2060), 1 % noise:
+    once the amplifier is chosen every cell is within the floor, and the selection stopped there; the stiffness, on top
+    of the amplifier, earns what a missing effect at the floor needs channel by channel (`AT_FLOOR_EVIDENCE`), so it is
+    searched and named (stop 49)."""
+    machine = machine_from_config(small_grid("demo20"))
+    truth = [effect("amplifier_lowpass", cutoff_hz=6809.0), effect("element_stiffness", tag="design", scale=0.99886)]
+    diagnosis = diagnose(machine, synthetic_measurement(machine, truth, relative_noise=1e-2))
+    assert [f.candidate.label for f in diagnosis.sequence] == ["amplifier_lowpass", "element_stiffness[design]"]
+    assert diagnosis.sequence[1].share == 0 and diagnosis.sequence[1].channel_evidence > AT_FLOOR_EVIDENCE
+    scale = diagnosis.joint.table.set_index("parameter").loc["element_stiffness[design].scale"]
+    assert abs(scale["value"] - 0.99886) < 2 * scale["std"], scale
+
+
 def test_joint_refit_keeps_what_the_data_do_not_determine(demo):
     # the model's own modal damping of 0.01 is barely seen by a measurement that stops below the first mode:
     # the prior keeps it within its own uncertainty of the configured value and the table says it is undetermined
