@@ -132,16 +132,16 @@ def _bracket(log_frequency, repeated):
     return left, right, weight
 
 
-def _interpolated(log_frequency, repeated, coefficient, variance):
+def _interpolated(log_frequency, repeated, coefficient, variance, bracket=None):
     """A coefficient, its noise variance and its interpolation error at every point of one channel.
 
     ``repeated`` indexes the points with their own estimate (``coefficient`` and
     ``variance`` in that order); the others interpolate linearly in
     ``log_frequency`` between the repeated points either side (the nearest one
-    beyond the ends).
+    beyond the ends), as ``bracket`` (`_bracket`, made here if not given) gives them.
     """
     x = log_frequency[repeated]
-    left, right, weight = _bracket(log_frequency, repeated)
+    left, right, weight = bracket or _bracket(log_frequency, repeated)
     spacing = np.maximum(x[right] - x[left], 1e-12)
     value = (1 - weight) * coefficient[left] + weight * coefficient[right]
     noise = (1 - weight) ** 2 * variance[left] + weight**2 * variance[right]
@@ -343,7 +343,8 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         measured = amplitude_dependence(kappa, variance * factor) > MEASURED_KAPPA
         if not measured:
             variance, s, s1 = variance * factor, s * np.sqrt(factor), s1 * np.sqrt(factor)
-        k, k_variance, k_error = _interpolated(np.log(frequency), repeated, kappa, variance)
+        bracket = _bracket(np.log(frequency), repeated)
+        k, k_variance, k_error = _interpolated(np.log(frequency), repeated, kappa, variance, bracket)
         a2 = square[rows]
         # a resonance between the pairs: the interpolated coefficient misses it by about |r - 1| times itself
         ratio = resonance_ratio(frequency, np.abs(values[rows]), frequency[repeated])
@@ -355,7 +356,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         to_kappa = lever / (zero_repeated**2 * square[high])
         channels[key] = dict(
             rows=rows, frequency=frequency, repeated=repeated, measured=measured,
-            bracket=_bracket(np.log(frequency), repeated), amplitude_squared=a2,
+            bracket=bracket, amplitude_squared=a2,
             kappa_sources=np.stack([to_kappa * g1 * s, -to_kappa * g * s1], axis=1),
             zero_sources=np.stack([(1 - lever) * s, lever * s1], axis=1),
             correction=k * a2, correction_variance=k_variance * a2**2, relative_error=relative_error,

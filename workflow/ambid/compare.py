@@ -124,20 +124,15 @@ def effective_shares(table):
     The FRF table's ``effective_share`` (`ambid.amplitude.effective_share`: below
     1 where the extrapolation to zero amplitude makes points share their repeats'
     noise), 1 where the table has none (a table of another writer).  What a cell
-    of the diagnosis counts for its chance limit (`ambid.diagnose.chance_limit`).
+    of the diagnosis counts for its chance limit (`ambid.diagnose.chance_limit`;
+    `ambid.diagnose.diagnose` checks them).
 
     Returns
     -------
     dict
         ``(output, input) -> shares``, in frequency order.
     """
-    out = {}
-    for key, (estimator, output, input_axis) in _compared(table).items():
-        share = channel(table, estimator, output, input_axis, share=True)[-1]
-        if not np.all((share > 0) & (share <= 1)):
-            raise CompareError(f"channel {estimator} {output}/{input_axis}: effective_share must be in (0, 1]")
-        out[key] = share
-    return out
+    return {key: channel(table, *row, share=True)[-1] for key, row in _compared(table).items()}
 
 
 def model_response(plant, channels):

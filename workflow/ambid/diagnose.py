@@ -334,7 +334,7 @@ class _Cells:
         # what the points count for the chance limit: the sum of their shares of an independent point
         share = [np.ones(f.size) if shares is None or key not in shares else np.asarray(shares[key], dtype=float)
                  for key, (f, _, _) in measured.items()]
-        for key, (f, _, _), s in zip(measured, measured.values(), share):
+        for (key, (f, _, _)), s in zip(measured.items(), share):
             if s.shape != f.shape or not np.all((s > 0) & (s <= 1)):
                 raise DiagnoseError(f"channel {key[0]}/{key[1]}: each point's effective share must be in (0, 1], one "
                                     f"per point ({s.size} for {f.size} points)")

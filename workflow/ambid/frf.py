@@ -34,8 +34,7 @@ from .machine import ALL_AXES, RADIAL_AXES
 from .plausibility import FRF_SETTINGS, check_log
 
 __all__ = ["FRF_UNITS", "log_arrays", "siso_etfe", "mimo_etfe", "current_etfe", "frf_table", "frf_from_log", "FrfStage",
-           "frf_stage",
-           "channel", "radial_estimator"]
+           "frf_stage", "channel", "radial_estimator"]
 
 
 def log_arrays(frame, level=0):
