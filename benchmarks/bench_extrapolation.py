@@ -37,8 +37,9 @@ diagnosis benchmark's grid (80 radial points from 1 Hz, 26 axial), over many see
 band cell (`ambid.diagnose.misfit_cells`): the mean and standard deviation of chi2 per point over the seeds, the
 effective number of independent points ``(mean / sd)^2`` (the cell's point count where its errors are independent)
 beside the sum of its points' ``effective_share`` that the FRF stage states (median over the logs), the cell's chance
-limit (`ambid.diagnose.chance_limit` of those, median and largest) and on how many seeds the cell reads above it
-(0.135 % of them if the stated shares were right and the tail Gamma).  Measured (stop 48, seeds 2040-2079, 40 logs a
+limit (`ambid.diagnose.chance_limit` of those and of the degrees of freedom of their stated variances, median and
+largest: Fisher's F where those are estimates, else Gamma) and on how many seeds the cell reads above it (0.135 % of
+them if the stated shares and degrees of freedom are right).  Measured (stop 48, seeds 2040-2079, 40 logs a
 machine, every point counted as independent): the axial
 position cell (26 points, 1-100 Hz) at zero amplitude reads mean 1.14 and 1.04 (demo20, hs_eden_like), standard
 deviation 0.52 and 0.46 where independent points give 0.22 and 0.20: 4.8 and 5.1 effective points of 26, above its
@@ -206,18 +207,20 @@ def cell_study(first_seed, logs, workers):
     for name, outs in results.items():
         print(f"-- {name}, no hidden effect, seeds {first_seed}-{first_seed + logs - 1}: chi2 per point of each cell")
         print("   cell                          zero amplitude  points   mean     sd  (independent)  effective points:"
-              " from the spread, stated (median)   limit (median, max)  above it")
+              " from the spread, stated (median)  estimate dof (median)  limit (median, max)  above it")
         for zero in (True, False):
             cells = outs[0][zero]
             per_point = np.array([out[zero]["chi2_per_point"].to_numpy() for out in outs])
             above = np.array([out[zero]["above_floor"].to_numpy() for out in outs])
             stated = np.array([out[zero]["effective_points"].to_numpy() for out in outs])
             limit = np.array([out[zero]["limit"].to_numpy() for out in outs])
+            dof = np.array([out[zero]["estimate_dof"].to_numpy() for out in outs])
             for k, cell in enumerate(cells.itertuples()):
                 mean, sd = per_point[:, k].mean(), per_point[:, k].std(ddof=1)
                 print(f"   {cell.family:9s} {cell.band:12s} {cell.output:6s} {str(zero):5s}  {cell.points:6d}  "
                       f"{mean:6.2f} {sd:6.2f}  ({mean / np.sqrt(cell.points):5.2f})  "
                       f"{(mean / sd) ** 2 if sd > 0 else np.inf:14.1f} {np.median(stated[:, k]):8.1f}"
+                      f"  {np.median(dof[:, k]):8.1f}"
                       f"  {np.median(limit[:, k]):6.2f} {limit[:, k].max():6.2f}"
                       f"  {np.sum(above[:, k]):3d} of {len(outs)}")
 

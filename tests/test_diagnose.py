@@ -16,11 +16,12 @@ import unittest.mock
 from dataclasses import replace
 
 import numpy as np
+import scipy.stats
 import pandas as pd
 import pytest
 import yaml
 
-from ambid.compare import channel_errors, effective_shares, measured_channels, model_response, summarize
+from ambid.compare import PointShares, channel_errors, effective_shares, measured_channels, model_response, summarize
 from ambid.diagnose import (AT_FLOOR_EVIDENCE, CELL_TAIL, Candidate, DiagnoseError, DiagnoseSettings, FreeParameter,
                             _Cells, _Evaluator, _covariance, _fit, _least_bic, _prune, _weak_housing_start, bic_evidence,
                             candidate_space, chance_limit, diagnose, effect_label, joint_refit, misfit, misfit_cells,
@@ -850,6 +851,25 @@ def test_a_cell_at_the_floor_exceeds_its_chance_limit_as_rarely_as_meant():
     assert chance_limit(10_000) == pytest.approx(1 + 3 / np.sqrt(10_000), rel=1e-3)  # many points: the normal limit
 
 
+def test_a_cell_whose_variances_are_estimates_exceeds_its_chance_limit_as_rarely_as_meant():
+    """Points whose stated variances share an estimate of nu degrees of freedom: the cell's chi2 per point is
+    F(2 n, nu), and `chance_limit` with ``estimate_dof`` is its 3-sigma quantile.  The Gamma of the same variance
+    (Satterthwaite's effective points, the limit of stop 49) lets such cells through about ten times as often: the
+    axial position cell's 15.5 noise points and 17 degrees of freedom, two of 80 no-effect logs of the suite above
+    2.7 (stop 50)."""
+    rng = np.random.default_rng(12)
+    draws = 1_000_000
+    for points, dof in ((16, 17.0), (26, 40.0)):
+        numerator = rng.standard_gamma(points, size=draws) / points  # n exponential |r|^2 at the floor, their mean
+        estimate = rng.chisquare(dof, size=draws) / dof  # the shared estimate's relative variance
+        cells = numerator / estimate
+        limit = chance_limit(points, estimate_dof=dof)
+        assert np.mean(cells > limit) == pytest.approx(CELL_TAIL, rel=0.15)
+        satterthwaite = 1 / (1 / points + 2 / dof)  # the same variance, as independent points
+        assert np.mean(cells > chance_limit(satterthwaite)) > 5 * CELL_TAIL
+    assert chance_limit(26, estimate_dof=1e12) == pytest.approx(chance_limit(26), rel=1e-6)  # a known variance
+
+
 def test_a_cell_whose_points_share_their_errors_takes_the_limit_of_fewer_points():
     """A cell's chance limit counts the sum of its points' effective shares (`ambid.compare.effective_shares`): 26
     axial points that count as 5.2 independent ones are above the floor at the limit of 5.2 (2.83), not of 26 (1.69);
@@ -867,6 +887,18 @@ def test_a_cell_whose_points_share_their_errors_takes_the_limit_of_fewer_points(
         misfit_cells(measured, predicted, shares={("Z", "Z"): np.full(26, 1.2)})
     with pytest.raises(DiagnoseError, match="effective share"):
         misfit_cells(measured, predicted, shares={("Z", "Z"): np.full(25, 0.2)})
+    # the same shares, of which a variance error of 3.3 a point is the stated variances' (as the suite's axial cell:
+    # the noise's points 26 / (5 - 3.3) = 15.3, the estimates' degrees of freedom 2 26^2 / (26 3.3) = 15.8): the F
+    # limit, far above the Gamma's of 5.2 points; the cell at 2.2 within it
+    estimated = misfit_cells(measured, predicted, shares={("Z", "Z"): PointShares(np.full(26, 0.2), np.full(26, 3.3))})
+    assert estimated["effective_points"].iloc[0] == pytest.approx(5.2)
+    assert estimated["estimate_dof"].iloc[0] == pytest.approx(2 * 26 / 3.3)
+    assert estimated["limit"].iloc[0] == pytest.approx(chance_limit(26 / 1.7, estimate_dof=2 * 26 / 3.3))
+    assert estimated["limit"].iloc[0] == pytest.approx(scipy.stats.f.isf(CELL_TAIL, 2 * 26 / 1.7, 2 * 26 / 3.3))  # 4.51
+    assert not estimated["above_floor"].any()
+    assert np.isinf(shared["estimate_dof"].iloc[0])
+    with pytest.raises(DiagnoseError, match="variance error"):  # more than the share counts
+        misfit_cells(measured, predicted, shares={("Z", "Z"): PointShares(np.full(26, 0.2), np.full(26, 4.5))})
 
 
 def test_evidence_channel_by_channel_discounts_gains_on_channels_the_model_misses_anyway():

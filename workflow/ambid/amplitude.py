@@ -302,10 +302,13 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
     table : pandas.DataFrame
         A copy; rows that take the zero-amplitude estimate have it in ``re``,
         ``im``, ``std`` (propagated noise) and ``systematic_std`` (interpolation
-        error; 0 at repeated steps) and its ``effective_share`` (`effective_share`:
-        the steps between two pairs share their noise); the others keep theirs (1
-        from `ambid.frf.frf_table`: the sharing of their pooled noise estimates is
-        not counted).
+        error; 0 at repeated steps), its ``effective_share`` (`effective_share`:
+        the steps between two pairs share their noise) and its ``variance_error``
+        (``sum_j c_ij``: the variance of its stated variance's relative error with
+        the covariances of the other points' that share it, what a cell's chance
+        limit takes its noise estimate's degrees of freedom from); the others keep
+        theirs (1 and 0 from `ambid.frf.frf_table`: the sharing of their pooled
+        noise estimates is not counted).
     extrapolated : numpy.ndarray of bool
         Which rows took it.
     """
@@ -325,6 +328,8 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
     new_values, new_noise, new_systematic = values.copy(), noise.copy(), systematic.copy()
     shares = (table["effective_share"].to_numpy(dtype=float, copy=True) if "effective_share" in table
               else np.ones(len(table)))
+    variance_errors = (table["variance_error"].to_numpy(dtype=float, copy=True) if "variance_error" in table
+                       else np.zeros(len(table)))
     channels = {}
     for key, (rows, repeated, low) in level_pairs(table, low_table, square, low_square, max_ratio).items():
         if repeated.size < settings.min_pairs:
@@ -386,11 +391,13 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         new_values[chosen], new_noise[chosen], new_systematic[chosen] = zero[better], zero_noise[better], zero_systematic[better]
         extrapolated[chosen] = True
         if structured is None and better.any():  # (a row left as measured keeps its share, as every other channel's)
-            shares[chosen] = effective_share(*_shared_errors(channel, better, zero, noise[rows], zero_systematic,
-                                                             scale[rows], settings))[better]
+            shared, alone, estimate = _shared_errors(channel, better, zero, noise[rows], zero_systematic, scale[rows],
+                                                     settings)
+            shares[chosen] = effective_share(shared, alone, estimate)[better]
+            variance_errors[chosen] = estimate.sum(axis=1)[better]
     table["re"], table["im"] = new_values.real, new_values.imag
     table["std"], table["systematic_std"] = new_noise, new_systematic
-    table["effective_share"] = shares
+    table["effective_share"], table["variance_error"] = shares, variance_errors
     return table, extrapolated
 
 

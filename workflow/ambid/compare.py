@@ -24,6 +24,7 @@ magnitude and phase errors.  This is the "compare" step of the diagnosis loop.
 """
 
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -38,7 +39,7 @@ from .machine import ALL_AXES, AXIAL_AXIS, COIL_CURRENT_SAMPLING, RADIAL_AXES
 from .findings import Finding
 from .plant import Plant, zoh_discretize
 
-__all__ = ["CompareError", "measured_channels", "effective_shares", "model_response", "model_channels",
+__all__ = ["CompareError", "measured_channels", "PointShares", "effective_shares", "model_response", "model_channels",
            "channel_errors", "summarize", "current_channel", "channel_family", "truncation_error", "enough_modes",
            "with_enough_modes", "at_run_level",
            "for_run", "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
@@ -118,21 +119,29 @@ def _compared(table):
             for row in wanted if row in logged}
 
 
+class PointShares(NamedTuple):
+    """What one channel's points count for at the floor, in frequency order (`effective_shares`)."""
+
+    share: np.ndarray  #: each point's share of an independent point (its noise's and its stated variance's sharing)
+    variance_error: np.ndarray  #: the variance of its stated variance's relative error, with its shared covariances
+
+
 def effective_shares(table):
     """Each point's share of an independent point, channel by channel as `measured_channels` gives them.
 
-    The FRF table's ``effective_share`` (`ambid.amplitude.effective_share`: below
-    1 where the extrapolation to zero amplitude makes points share their repeats'
-    noise), 1 where the table has none (a table of another writer).  What a cell
-    of the diagnosis counts for its chance limit (`ambid.diagnose.chance_limit`;
-    `ambid.diagnose.diagnose` checks them).
+    The FRF table's ``effective_share`` and ``variance_error``
+    (`ambid.amplitude.zero_amplitude`: below 1 and above 0 where the
+    extrapolation to zero amplitude makes points share their repeats' noise and
+    noise estimates), 1 and 0 where the table has none (a table of another
+    writer).  What a cell of the diagnosis counts for its chance limit
+    (`ambid.diagnose.chance_limit`; `ambid.diagnose.diagnose` checks them).
 
     Returns
     -------
     dict
-        ``(output, input) -> shares``, in frequency order.
+        ``(output, input) -> PointShares``.
     """
-    return {key: channel(table, *row, share=True)[-1] for key, row in _compared(table).items()}
+    return {key: PointShares(*channel(table, *row, share=True)[-2:]) for key, row in _compared(table).items()}
 
 
 def model_response(plant, channels):

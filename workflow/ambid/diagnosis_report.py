@@ -143,10 +143,15 @@ def _marked_bounds(fitted):
 
 
 def _cells_text(cells):
-    """Cells in words: chi2 per point against their limit, and their points (what they count for, where fewer)."""
+    """Cells in words: chi2 per point against their limit, and their points (what they count for, where fewer, and
+    the degrees of freedom of their stated noise, where it is an estimate that few)."""
+    def dof_text(r):
+        dof = getattr(r, "estimate_dof", np.inf)
+        return f", their noise estimated with {dof:.0f} degrees of freedom" if np.isfinite(dof) and dof < 1000 else ""
+
     return ", ".join(f"{cell_name(r)} (chi2 per point {r.chi2_per_point:.3g} against {r.limit:.3g}, {r.points} points"
                      + (f" counting as {r.effective_points:.{0 if r.effective_points >= 100 else 1}f} independent"
-                        if r.effective_points < 0.95 * r.points else "") + ")"
+                        if r.effective_points < 0.95 * r.points else "") + dof_text(r) + ")"
                      for r in cells.sort_values("chi2_per_point", ascending=False).itertuples())
 
 

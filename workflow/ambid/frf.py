@@ -161,15 +161,17 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
 #: Units of the `frf_table` columns, as the FRF rules write them.
 FRF_UNITS = {"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)", "std": "m/A (A/A: current)",
              "systematic_std": "m/A (A/A: current)", "condition": "-",
-             "effective_share": "- (share of an independent point)"}
+             "effective_share": "- (share of an independent point)",
+             "variance_error": "- (variance of the stated variance's relative error, with its shared covariances)"}
 
 
 def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     """Long-format FRF table: ``estimator`` (siso / mimo / current), ``output``, ``input``, ``frequency_hz``,
     ``re``, ``im``, ``std`` (noise) [m/A; A/A for ``current``], ``condition`` (of U, MIMO only) and
-    ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it) and ``effective_share`` (1 here: the
+    ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it), ``effective_share`` (1 here: the
     share of an independent point a row's error carries, below 1 where `ambid.amplitude.zero_amplitude` makes rows
-    share their repeats' noise)."""
+    share their repeats' noise) and ``variance_error`` (0 here: how uncertain a row's stated variance is, where
+    `ambid.amplitude.zero_amplitude` states it from shared noise estimates)."""
     parts = []
     for (output, input_axis), (frequency, a, std) in (current or {}).items():
         parts.append(pd.DataFrame({"estimator": "current", "output": output, "input": input_axis, "frequency_hz": frequency,
@@ -184,7 +186,7 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
                 parts.append(pd.DataFrame({"estimator": "mimo", "output": output, "input": input_axis, "frequency_hz": frequency,
                                            "re": plant[:, i, j].real, "im": plant[:, i, j].imag, "std": std[:, i, j],
                                            "condition": condition}))
-    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan, effective_share=1.0)
+    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan, effective_share=1.0, variance_error=0.0)
 
 
 def frf_from_log(frame, floor_settings=None, source="identification log", estimator="mimo"):
@@ -302,7 +304,7 @@ def channel(table, estimator, output, input_axis, systematic=False, share=False)
     """Frequencies, complex values and standard deviations of one channel of an `frf_table`.
 
     With ``systematic``, also the ``systematic_std`` (NaN where the table has none); with ``share``, also the
-    ``effective_share`` (1 where the table has none).
+    ``effective_share`` and the ``variance_error`` (1 and 0 where the table has none).
     """
     rows = table[(table["estimator"] == estimator) & (table["output"] == output) & (table["input"] == input_axis)]
     rows = rows.sort_values("frequency_hz")
@@ -312,5 +314,7 @@ def channel(table, estimator, output, input_axis, systematic=False, share=False)
         out += (extra,)
     if share:
         out += (rows["effective_share"].to_numpy(dtype=float) if "effective_share" in rows.columns
-                else np.ones(len(rows)),)
+                else np.ones(len(rows)),
+                rows["variance_error"].to_numpy(dtype=float) if "variance_error" in rows.columns
+                else np.zeros(len(rows)))
     return out

@@ -35,7 +35,7 @@ candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machin
 write_tsv(candidates, snakemake.output.candidates)
 write_tsv(diagnosis.joint.table if diagnosis.joint is not None else pd.DataFrame(columns=list(JOINT_COLUMNS)),
           snakemake.output.joint)
-cell_keys = ["family", "band", "output", "points", "effective_points", "limit"]
+cell_keys = ["family", "band", "output", "points", "effective_points", "estimate_dof", "limit"]
 write_tsv(diagnosis.cells_before.merge(diagnosis.cells_after, on=cell_keys, suffixes=("_before", "_after")),
           snakemake.output.cells)
 write_findings(run_findings + diagnosis_findings(diagnosis), snakemake.output.findings)
