@@ -179,7 +179,7 @@ class TestZeroAmplitude:
         from estimates its neighbours share: over 60 logs, the spread of the band's chi2 per point is that of the sum
         of its points' `effective_share` independent points, not of its 39 points (stop 48: the axial cell's 26
         points spread as 5 and read above their chance limit on 8 of 80 rigs without a hidden effect)."""
-        per_point, stated = [], []
+        per_point, stated, noise_points, estimate_dof = [], [], [], []
         for seed in range(60):
             frame = synthetic_log(kappa=0.004, noise=3e-3, seed=seed, points=120, stated_dof=4)
             table = frf_from_log(frame, ZERO_AMPLITUDE)[0]
@@ -189,11 +189,19 @@ class TestZeroAmplitude:
             error = (rows["re"] + 1j * rows["im"]).to_numpy() - 1e-5 / (1 + 1j * f / 300)
             per_point.append(np.mean(np.abs(error) ** 2 / (rows["std"] ** 2 + rows["systematic_std"] ** 2)))
             stated.append(rows["effective_share"].sum())
+            # what `ambid.diagnose._Cells` reads for Fisher's F: the noise's points and the estimates' degrees of freedom
+            noise_points.append(np.sum(1 / (1 / rows["effective_share"] - rows["variance_error"])))
+            estimate_dof.append(2 * len(rows) ** 2 / rows["variance_error"].sum())
         spread = (np.mean(per_point) / np.std(per_point, ddof=1)) ** 2  # the independent points the spread shows
         assert len(f) == 39 and np.all(table["effective_share"].between(0, 1, inclusive="right"))
         assert spread < 0.75 * len(f), spread  # fewer than the points
         # (17.3 against 19.5; without the stated variances' shared estimates, 25.0)
         assert np.median(stated) == pytest.approx(spread, rel=0.2), (np.median(stated), spread)
+        # F(2 n1, n2)'s standard deviation against the spread's (0.258 from n1 25.0 and n2 91, against 0.248)
+        d1, d2 = 2 * np.median(noise_points), np.median(estimate_dof)
+        f_sd = np.sqrt(2 * d2**2 * (d1 + d2 - 2) / (d1 * (d2 - 2) ** 2 * (d2 - 4)))
+        assert f_sd == pytest.approx(np.std(per_point, ddof=1), rel=0.2), (d1, d2, f_sd)
+        assert (table["variance_error"] >= 0).all()
         # the rows left at their measured value keep a share of 1
         kept = (table["re"] == frf_from_log(frame, DESCRIBING_FUNCTION)[0]["re"]).to_numpy()
         assert kept.any() and (table.loc[kept, "effective_share"] == 1).all()
