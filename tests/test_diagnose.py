@@ -557,8 +557,9 @@ def named_first(diagnosis, draws, names):
 
 def test_an_axial_effect_is_named_above_the_limit_of_the_points_it_counts_for(identification):
     """demo20 with the axial bearing's force constant 0.4 % high: the axial cell's 20 points, extrapolated to zero
-    amplitude, count for about 9 independent ones (their limit 2.28, not 1.81), and the effect, at chi2 per point 7.1
-    there, is still missing, its factor within two of its stated standard deviations (stop 49)."""
+    amplitude, count for about 9 independent ones, their variances for 80 degrees of freedom (their limit 2.49, F's;
+    2.28 Gamma's, 1.81 of 20 independent points), and the effect, at chi2 per point 7.1 there, is still missing, its
+    factor within two of its stated standard deviations (stops 49 and 50)."""
     machine_config = small_grid("demo20")
     truth = {"name": "actuator_coefficients", "parameters": {"force_constant_scale": [1, 1, 1, 1, 1.004]}}
     table = identify_on_rig(hidden_effect_rig(machine_config, [truth]), machine_config, identification, seed=11)
