@@ -409,7 +409,8 @@ class _Cells:
         above &= ~(self.rows & np.isin(family, list(bands_above)))
         return pd.DataFrame({"family": family, "band": [n[1] for n in self.names], "output": [n[2] for n in self.names],
                              "points": self.points.astype(int), "effective_points": self.effective,
-                             "estimate_dof": self.estimate_dof, "limit": self.limit(limit), "chi2_per_point": per_point, "above_floor": above})
+                             "estimate_dof": self.estimate_dof, "limit": self.limit(limit), "chi2_per_point": per_point,
+                             "above_floor": above})
 
 
 #: The chance of a cell at the floor reading above its `chance_limit`: the normal distribution's 3-sigma tail.
@@ -433,7 +434,7 @@ def chance_limit(points, tail=CELL_TAIL, estimate_dof=np.inf):
     the same variance.  On the suite's machines the axial position cell (26 points,
     ``n`` 15.5, ``nu`` 17) read 1.14 +- 0.52 over 40 logs without an effect
     (hs_eden_like 1.04 +- 0.46): F(31, 17) has 1.13 +- 0.54, the Gamma of its 5.7
-    effective points 1 +- 0.42, whose limit 2.73 two of 80 logs passed (stop 50).
+    effective points 1 +- 0.42, whose limits (2.5-2.8) two of 80 logs passed (stop 50).
     """
     points = np.asarray(points, dtype=float)
     dof = np.broadcast_to(np.asarray(estimate_dof, dtype=float), points.shape)
