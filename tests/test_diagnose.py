@@ -898,6 +898,10 @@ def test_a_cell_whose_points_share_their_errors_takes_the_limit_of_fewer_points(
     assert estimated["limit"].iloc[0] == pytest.approx(scipy.stats.f.isf(CELL_TAIL, 2 * 26 / 1.7, 2 * 26 / 3.3))  # 4.51
     assert not estimated["above_floor"].any()
     assert np.isinf(shared["estimate_dof"].iloc[0])
+    from ambid.diagnosis_report import _cells_text  # the words the report gives an unexplained cell
+    assert _cells_text(estimated).endswith("(chi2 per point 2.2 against 4.51, 26 points counting as 5.2 independent, "
+                                           "their noise estimated with 16 degrees of freedom)")
+    assert _cells_text(shared).endswith("counting as 5.2 independent)")
     with pytest.raises(DiagnoseError, match="variance error"):  # more than the share counts
         misfit_cells(measured, predicted, shares={("Z", "Z"): PointShares(np.full(26, 0.2), np.full(26, 4.5))})
 
