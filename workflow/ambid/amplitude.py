@@ -449,8 +449,8 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
     variance = np.where(variance > 0, variance, 1.0)
     level0, level1 = level0 / variance[:, None], level1 / variance[:, None]
     half_width = settings.noise_half_width
-    estimate = (level0 @ _pooled_covariance(n, half_width) @ level0.T
-                + level1 @ _pooled_covariance(pairs, half_width) @ level1.T)
+    pooled = _pooled_covariance(n, half_width)
+    estimate = level0 @ pooled @ level0.T + level1 @ _pooled_covariance(pairs, half_width) @ level1.T
     # the scale: a running mean of the ratios |r_k|^2 / s_k^2 of the steps whose local fit is centred on them; two
     # ratios covary by |rho_kl|^2 of their residuals (overlapping fits) and by their noise estimates
     centred = np.zeros(n)
@@ -463,7 +463,7 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
         fits[k, k] += 1.0
     residual = fits @ fits.T
     spread = np.sqrt(np.clip(residual.diagonal(), 1e-300, None))
-    ratios = (residual / spread[:, None] / spread[None, :]) ** 2 + _pooled_covariance(n, half_width)
+    ratios = (residual / spread[:, None] / spread[None, :]) ** 2 + pooled
     scale_covariance = mean @ ratios @ mean.T
     # the scale is the mean clipped at 1: a mean near 1 is clipped as often as not, and its error with it; each point's
     # noise share counts as often as its mean, normal about the scale squared, falls below 1

@@ -354,11 +354,12 @@ class _Cells:
         variance_error = self._count(error)
         with np.errstate(divide="ignore"):
             self.estimate_dof = np.where(variance_error > 0, 2 * self.points**2 / variance_error, np.inf)
+        self.chance = chance_limit(self.noise_points, estimate_dof=self.estimate_dof)  # fixed by the cells: once
 
     def limit(self, limit):
         """Each cell's ``chi2`` per point above the floor: ``max(limit, chance_limit)`` of its noise's effective points
         and its stated variances' degrees of freedom."""
-        return np.maximum(limit, chance_limit(self.noise_points, estimate_dof=self.estimate_dof))
+        return np.maximum(limit, self.chance)
 
     def _count(self, weights):
         size = len(self.names)
@@ -1575,8 +1576,8 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
         Other starts for the refits of the variant's own parameters (`joint_refit`): the diagnosed run's own update
         where the variant takes another run's.
     shares : dict, optional
-        `ambid.compare.effective_shares` of the run: what its points count for each cell's chance limit (none:
-        every point an independent one).
+        `ambid.compare.effective_shares` of the run (``PointShares``, or an array of shares alone, per channel): what
+        its points count for each cell's chance limit (none: every point an independent one, its variance known).
 
     Returns
     -------

@@ -146,8 +146,8 @@ def _cells_text(cells):
     """Cells in words: chi2 per point against their limit, and their points (what they count for, where fewer, and
     the degrees of freedom of their stated noise, where it is an estimate that few)."""
     def dof_text(r):
-        dof = getattr(r, "estimate_dof", np.inf)
-        return f", their noise estimated with {dof:.0f} degrees of freedom" if np.isfinite(dof) and dof < 1000 else ""
+        return (f", their noise estimated with {r.estimate_dof:.0f} degrees of freedom" if r.estimate_dof < 1000
+                else "")  # (inf where the variances are known)
 
     return ", ".join(f"{cell_name(r)} (chi2 per point {r.chi2_per_point:.3g} against {r.limit:.3g}, {r.points} points"
                      + (f" counting as {r.effective_points:.{0 if r.effective_points >= 100 else 1}f} independent"
