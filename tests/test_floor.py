@@ -578,7 +578,9 @@ def test_a_resonance_between_two_pairs_gets_the_amplitude_error_of_its_amplifica
     pairs': it grows with the amplification (`ambid.floor.resonance_ratio`).  At zero amplitude and as measured,
     the stated error now covers every element at the peak within 3 sigma (measured: 2.8 at worst, on two cross-plane
     elements, while the direct ones are stated three times their 7 % error; from the pairs' coefficient alone 7.7
-    sigma, and the suite's diagnosis named a 0.07 % stiffness change beside the rotation)."""
+    sigma, and the suite's diagnosis named a 0.07 % stiffness change beside the rotation).  At zero amplitude some
+    elements are now nearer the truth (DY/NX 1.1 %: its coefficient interpolated relative to G,
+    `ambid.amplitude._interpolation_basis`); the stated error still covers every one."""
     root = Path(__file__).resolve().parents[1]
     settings = replace(settings_from_config(yaml.safe_load((root / "config/config.yaml").read_text())["identification"]),
                        axes=RADIAL_AXES)  # the MIMO matrix needs the four radial runs, not the axial one
@@ -604,9 +606,54 @@ def test_a_resonance_between_two_pairs_gets_the_amplitude_error_of_its_amplifica
                                                                                    RADIAL_AXES.index(input_axis)]
                 value = rows["re"].iloc[at] + 1j * rows["im"].iloc[at]
                 stated = np.hypot(rows["std"].iloc[at], rows["systematic_std"].iloc[at])
-                assert abs(value / truth - 1) > 0.03, (output, input_axis)  # the amplitude error is there
+                if not floor_settings.zero_amplitude:
+                    assert abs(value / truth - 1) > 0.03, (output, input_axis)  # the amplitude error is there
                 worst = max(worst, abs(value - truth) / stated)
         assert worst < 3.0, (floor_settings.zero_amplitude, worst)
+
+
+def test_the_zero_amplitude_value_follows_a_resonance_between_two_pairs():
+    """demo20's rig spinning at 2132 rpm (the suite's draw 2061), noise-free, on the eleven steps about its first
+    bending mode (709 Hz, a repeated step): the steps either side of it (696.5 and 721.7 Hz) are not repeated, and the
+    describing function there is up to 2.3 and 1.8 % off the linearized truth on the MIMO elements.  With the
+    amplitude coefficient interpolated as it is, the zero-amplitude values were further off, 6.2 and 2.7 %: between
+    the pairs at 683.8 and 709.3 Hz the coefficient rotates with the mode.  Relative to G
+    (`ambid.amplitude._follows_response`: the force law's stiffness change is ``G dk G``), 2.3 and 0.9 %.  Under the
+    rig's noise it was worse: the suite's gyroscopic speed on draw 2061 read 2 % low at 8.9 standard deviations, now
+    0.36 % at 1.5."""
+    root = Path(__file__).resolve().parents[1]
+    settings = replace(settings_from_config(yaml.safe_load((root / "config/config.yaml").read_text())["identification"]),
+                       axes=RADIAL_AXES)
+    machine_config = yaml.safe_load((root / "config/machines/demo20.yaml").read_text())
+    step = 999.0 / 79  # the 80-point grid from 1 Hz, its steps 50-60; the plan repeats every other one
+    machine_config["frequency_grid"]["radial"].update(start_hz=1.0 + 50 * step, stop_hz=1.0 + 60 * step, points=11)
+    plan = StepPlan.for_machine(Plant(machine_from_config(machine_config)), settings)
+    rig = RigModel(hidden_effect_rig(machine_config, [{"name": "gyroscopic", "parameters": {"speed_rpm": 2132.2}}],
+                                     sensor_noise_m=0.0, current_noise_a=0.0, sensor_resolution_m=0.0,
+                                     current_resolution_a=0.0))
+    records, _ = run_stepped_sine(rig, plan, settings, seed=2026)
+    frame = identification_frame(records)
+    beside = [696.5, 721.7]
+    assert frame[(frame["level"] == 1) & (np.abs(frame["frequency_hz"] - 709.3) < 0.1)].size
+    assert frame[(frame["level"] == 1) & np.any([np.abs(frame["frequency_hz"] - f) < 0.1 for f in beside], axis=0)].empty
+    truth = rig.sampled_frequency_response(np.array(beside))
+    errors = {}
+    for floor_settings in (DESCRIBING_FUNCTION, FloorSettings()):
+        table, _, _ = frf_from_log(frame, floor_settings)
+        worst = np.zeros(2)
+        for output in RADIAL_AXES:
+            for input_axis in RADIAL_AXES:
+                rows = table[(table["estimator"] == "mimo") & (table["output"] == output)
+                             & (table["input"] == input_axis)].sort_values("frequency_hz")
+                at = [np.argmin(np.abs(rows["frequency_hz"].to_numpy() - f)) for f in beside]
+                value = (rows["re"] + 1j * rows["im"]).to_numpy()[at]
+                exact = truth[:, RADIAL_AXES.index(output), RADIAL_AXES.index(input_axis)]
+                stated = np.hypot(rows["std"], rows["systematic_std"]).to_numpy()[at]
+                assert np.all(np.abs(value - exact) < 3 * stated), (output, input_axis)
+                worst = np.maximum(worst, np.abs(value / exact - 1))
+        errors[floor_settings.zero_amplitude] = worst
+    assert np.all(errors[False] > [0.02, 0.015]), errors  # the amplitude error is there
+    assert np.all(errors[True] < [0.025, 0.012]), errors
 
 
 def test_a_mimo_cross_element_states_the_amplitude_error_of_its_bearings():
@@ -679,7 +726,7 @@ def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():
     """`ambid.amplitude._structured_zero`: pairs that agree with the predicted error within their noise take it (no
     departure added); pairs that depart from it by far more than their noise refute it (None); a departure between
     `DEPARTURE` and `MEASURED_KAPPA` standard deviations is stated as that fraction of the error; an element inside its
-    noise keeps the old path (None)."""
+    noise at every pair keeps the old path (None), one that stands out of it at some pairs does not."""
     from ambid.amplitude import _structured_zero
 
     rng = np.random.default_rng(5)
@@ -703,6 +750,10 @@ def test_a_cross_elements_own_pairs_refute_or_bound_the_predicted_error():
     assert np.all(systematic < 0.3 * np.abs(error))  # the noise-debiased departure of agreeing pairs is small
     assert _structured_zero(channel(2 * error[repeated] + noise(repeated.size)), inversion, measured, point_noise) is None
     assert _structured_zero(channel(error[repeated]), inversion, measured, np.full(n, 1e-6)) is None  # inside its noise
+    # inside its noise but at a resonance, where two of its pairs stand out of it (its median does not): the prediction
+    resonance = np.full(n, 1e-6)
+    resonance[repeated[9:11]] = 1e-8
+    assert np.allclose(_structured_zero(channel(error[repeated]), inversion, measured, resonance)[0], measured - error)
     # a tenth of the error, below a pair noise of a fifth of it: no departure
     assert np.all(_structured_zero(channel(1.1 * error[repeated]), inversion, measured, point_noise)[2] == 0)
     # a quarter of the error beyond a pair noise of a fifth of it (2.5 standard deviations over 20 pairs): 15 %
