@@ -1444,7 +1444,12 @@ def _choose(machine, measured, chosen, contenders, settings, cells, joint, alter
     ``chi2`` (at most `CONTENDERS`) are each refitted with the chosen effects (the
     variant's own parameters held where the last joint refit put them), and the one
     of least ``BIC = 2 chi2 / c + k ln(2N)`` (``c`` as in `_rank`, over these refits)
-    is chosen; then the full joint refit with it.  ``contenders``: `_contenders` of the round's ranking, best first.
+    is chosen; then the full joint refit with it.  The contenders whose BIC is within
+    `INDISTINGUISHABLE_BIC` of the pick's are named indistinguishable from it (the
+    round's ranking names those close before the refits): on demo20's rig with a
+    modal damping and a sensor pole hidden (draw 2040), the pole and an eddy-current
+    lag refitted with the damping differ by 6 in BIC, and the diagnosis named the
+    lag alone.  ``contenders``: `_contenders` of the round's ranking, best first.
     """
     pick = contenders[0]
     if chosen and len(contenders) > 1:  # (with effects chosen before, there is a joint refit of them)
@@ -1452,6 +1457,11 @@ def _choose(machine, measured, chosen, contenders, settings, cells, joint, alter
                   for f in contenders]
         pick = _least_bic(refits)
         pick.contenders = tuple((f.candidate.label, j.chi2) for f, j in refits)
+        # contenders the joint refits cannot tell from the pick are named, as the round's ranking names its own
+        bic = _bic(refits)
+        close = [f.candidate.label for (f, _), b in zip(refits, bic)
+                 if f is not pick and b - min(bic) < INDISTINGUISHABLE_BIC]
+        pick.indistinguishable = tuple(dict.fromkeys([*pick.indistinguishable, *close]))
     return pick, joint_refit(machine, measured, [*chosen, pick], settings, cells, initial=joint, alternatives=alternatives)
 
 
@@ -1474,11 +1484,16 @@ def _least_bic(refits):
     hs_eden_like log with an input cross coupling, the input and output couplings fit to the same chi2 to ten digits,
     and the last digit decided which one the diagnosis named.
     """
-    points = refits[0][1].residual.size
-    overdispersion = max(1.0, min(j.chi2 for _, j in refits) / points)
-    bic = [2 * j.chi2 / overdispersion + len(f.candidate.free) * np.log(2 * points) for f, j in refits]
+    bic = _bic(refits)
     least = min(bic)
     return next(f for (f, _), b in zip(refits, bic) if b <= least + 1e-9 * max(1.0, abs(least)))
+
+
+def _bic(refits):
+    """``BIC = 2 chi2 / c + k ln(2N)`` of each ``(candidate, JointFit)`` pair (`_least_bic`)."""
+    points = refits[0][1].residual.size
+    overdispersion = max(1.0, min(j.chi2 for _, j in refits) / points)
+    return [2 * j.chi2 / overdispersion + len(f.candidate.free) * np.log(2 * points) for f, j in refits]
 
 
 def _swap(machine, measured, chosen, rounds, settings, cells, joint, alternatives=()):
