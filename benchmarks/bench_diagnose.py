@@ -121,7 +121,12 @@ and 2059 say "nothing"), every other row of the three samples the same.  Stop 50
 on its relative error, `ambid.effects.half_order_lag_sections`; a cell whose variances are estimates at Fisher's F
 limit): the eddy-current corners' errors 0.4-2.3 % -> 0.03-1.4 %, within 2 std 90 / 89 / 92 / 88 % -> 92 / 92 / 95 /
 90 % (in sample, 2040, 2050, 2060), none of them beyond 3 std; every other row of the four samples the same.
-About 8-9 minutes per suite with 2 workers.
+Stop 51 (zero amplitude: `kappa / G` interpolated where the pairs prefer it, a cross element resolved at some pair
+takes the diagonals' prediction; contenders within BIC 10 after the joint refits named indistinguishable): within 2
+std 91 / 94 / 98 / 95 %, the gyroscopic speeds of 2040, 2050, 2061 within 0.4 %; top-1 48 / 50 / 48 / 47 (2050 and
+2060 measured before the naming of close contenders; 2060's miss a delay named a sensor pole, BIC 12 apart),
+parameters 46 / 50 / 46 / 45.
+About 8-12 minutes per suite with 2 workers.
 """
 
 import concurrent.futures
