@@ -500,6 +500,34 @@ def test_bad_input():
         misfit({("DX", "DX"): (frequency, np.ones(2), np.ones(2))}, {("DX", "DX"): np.array([np.nan, 1.0])})
 
 
+def test_contenders_the_joint_refits_cannot_tell_apart_are_named_indistinguishable(monkeypatch):
+    """`ambid.diagnose._choose`: of a round's close contenders refitted jointly with the effects chosen before, the
+    least BIC is picked, and the others within `INDISTINGUISHABLE_BIC` of it are named indistinguishable from it (demo20
+    2040's sensor pole and eddy-current lag, 6 apart, were named alone); one 20 apart is not."""
+    import ambid.diagnose as diagnose_module
+    from ambid.diagnose import FittedCandidate, _choose
+
+    chi2 = {"delay": 1000.0, "sensor_lowpass": 1002.0, "eddy_current": 1020.0, "modal_damping": 5000.0}
+
+    class Joint:  # what `_choose` reads of a joint refit
+        def __init__(self, label):
+            self.chi2, self.residual = chi2[label], np.zeros(500, dtype=complex)
+
+    monkeypatch.setattr(diagnose_module, "joint_refit",
+                        lambda machine, measured, effects, *args, **kwargs: Joint(effects[-1].candidate.label))
+    monkeypatch.setattr(diagnose_module, "_variant", lambda joint: None)
+
+    def fitted(label):
+        return FittedCandidate(Candidate(label, label, (FreeParameter("x", 1.0, 2.0),)), (1.5,), (0.1,), chi2[label])
+
+    chosen = [fitted("modal_damping")]
+    contenders = [fitted("eddy_current"), fitted("sensor_lowpass"), fitted("delay")]
+    # overdispersion 1000 / 500 = 2: BIC 2 chi2 / 2 + ln(1000), so 2 and 20 apart
+    pick, joint = _choose(None, {}, chosen, contenders, DiagnoseSettings(), None, None)
+    assert pick.candidate.label == "delay" and joint.chi2 == 1000.0
+    assert pick.indistinguishable == ("sensor_lowpass",)
+
+
 def test_a_candidate_that_cannot_be_built_does_not_stop_the_diagnosis(demo):
     # shifts below -25 mm move the DE sensor off the rotor: invalid effects the fit steps around
     shift = Candidate("noncollocation", "noncollocation",
