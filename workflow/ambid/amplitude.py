@@ -205,13 +205,9 @@ def _follows_response(log_frequency, repeated, coefficient, variance, values, br
         return relative
     scores = []
     for basis in (np.ones(at_pairs.size), at_pairs):
-        u, residual, _ = _leave_one_out(x, coefficient / basis, variance / np.abs(basis) ** 2)
-        # in the coefficient's own units (a pair's own basis times the residual of the scaled one), so both are judged
-        # alike
-        own = basis[1:-1]
-        stated = (variance[1:-1] + (1 - u) ** 2 * variance[:-2] * np.abs(own / basis[:-2]) ** 2
-                  + u**2 * variance[2:] * np.abs(own / basis[2:]) ** 2)
-        score = np.abs(residual * own) ** 2 / stated
+        # (the ratio is the same in the coefficient's own units: residual and variance both scale by the pair's basis)
+        _, residual, stated = _leave_one_out(x, coefficient / basis, variance / np.abs(basis) ** 2)
+        score = np.abs(residual) ** 2 / stated
         scores.append(np.concatenate([score[:1], score, score[-1:]]))  # the end pairs: their interior neighbour's
     left, right, _ = bracket
     relative = scores[1][left] + scores[1][right] < scores[0][left] + scores[0][right]
@@ -449,7 +445,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
             zero, zero_noise, zero_systematic = structured
             zero_noise = np.hypot(noise[rows], zero_noise)
         else:
-            g_all = values[rows]
+            g_all = channel["values"]
             zero = g_all / (1 + channel["correction"])
             zero_noise = np.sqrt(noise[rows] ** 2 * np.abs(_own_gain(channel)) ** 2
                                  + channel["correction_variance"] * np.abs(zero) ** 2)
