@@ -156,6 +156,27 @@ def test_joint_refit_moves_what_the_variant_has_wrong(demo):
     assert retunes and all("at its search bound" in f.message for f in retunes)
 
 
+def test_a_variant_within_the_floor_retunes_its_own_parameter_instead_of_adding_a_second(demo):
+    # the model carries a modal damping of 0.0048, the truth 0.005: every cell within the floor, and the data determine
+    # the damping to 0.2 %; the same effect on top of the variant's own is degenerate with it (hs_eden_like's `actuator`
+    # variant: "missing: modal_damping 0.00014 +- 0.0078" on top of its own 0.00786, each undetermined alone)
+    measured = synthetic_measurement(demo, [effect("modal_damping", damping_ratio=0.005)], relative_noise=1e-2, seed=3)
+    model = demo.with_effects((effect("modal_damping", damping_ratio=0.0048),))
+    diagnosis = diagnose(model, measured)
+    assert not diagnosis.cells_before["above_floor"].any()
+    assert diagnosis.verdict == "retune" and not diagnosis.sequence
+    joint = diagnosis.joint.table.set_index("parameter")
+    assert list(joint.index) == ["modal_damping.damping_ratio"]
+    assert abs(joint.loc["modal_damping.damping_ratio", "value"] - 0.005) <= 2 * joint.loc["modal_damping.damping_ratio", "std"]
+    assert joint.loc["modal_damping.damping_ratio", "relative_std"] < 0.01
+    assert diagnosis.retune_evidence > AT_FLOOR_EVIDENCE
+    _, page = diagnosis_report(diagnosis, Plant(model), measured, None, "retune within the floor")
+    assert "lies within the floor, but its own parameters refitted earn BIC evidence" in page
+    # a variant that has it right is not retuned: the refit earns nothing at the floor
+    right = diagnose(demo.with_effects((effect("modal_damping", damping_ratio=0.005),)), measured)
+    assert right.verdict == "nothing" and right.joint is None
+
+
 def test_a_candidate_masked_by_a_larger_misfit_is_searched_afresh():
     """hs_eden_like with a 5776 Hz current loop and the DE bearing's elements 1.14 % stiffer (the suite's pair draw,
     on the DE side), on the suite's 80-point grid: judged against the amplifier's misfit, the DE stiffness barely

@@ -1337,9 +1337,9 @@ class Diagnosis:
     with the variant's own parameters; ``cells_before`` / ``cells_after``: the misfit per family
     and band of the model as it is and after the joint refit; ``verdict``: ``missing``
     (effects to add), ``retune`` (nothing to add, but the variant's own parameters move
-    and that brings the misfit to the floor), ``unexplained`` (misfit above the floor that
-    no library effect explains) or ``nothing`` (at the floor; `lead` names what the data
-    favour all the same).
+    and that brings the misfit to the floor, or, within the floor, earns `AT_FLOOR_EVIDENCE`: ``retune_evidence``),
+    ``unexplained`` (misfit above the floor that no library effect explains) or ``nothing`` (at the floor; `lead`
+    names what the data favour all the same).
     """
 
     chi2: float  # of the model as it is
@@ -1356,6 +1356,9 @@ class Diagnosis:
     base_at_floor: bool = False  # no cell of the model the candidates were fitted on is above the floor
     base_residual: np.ndarray = None  # of the model the candidates were fitted on (each `FittedCandidate.residual` adds one)
     determined_std: float = DiagnoseSettings.determined_std
+    # where every cell of the model as it is lies within the floor and its own parameters refitted earn more than
+    # `AT_FLOOR_EVIDENCE` channel by channel (one parameter per direction the data determine): that evidence
+    retune_evidence: float | None = None
 
     @property
     def excess(self):
@@ -1608,8 +1611,20 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     chi2 = float(np.vdot(residual, residual).real)
     cells_before = cells.frame(residual, settings.floor_limit)
     above_before = cells_before["above_floor"].to_numpy()
-    # the variant's own parameters first: a misfit they explain is not a missing effect
-    retuned = joint_refit(machine, measured, (), settings, cells, alternatives=alternatives) if above_before.any() else None
+    # the variant's own parameters first: a misfit they explain is not a missing effect. Where no cell is above the
+    # floor, they face the test a candidate faces there (`AT_FLOOR_EVIDENCE`, one parameter per direction the data
+    # determine): hs_eden_like's `actuator` variant carries a modal damping of 0.00786, the rig 0.0080, within the
+    # floor of every cell; not retuned, a modal damping candidate on top earned 591 and was named missing at 0.00014 +-
+    # 0.0078, degenerate with the variant's own (each undetermined alone)
+    retuned = joint_refit(machine, measured, (), settings, cells, alternatives=alternatives) \
+        if any(_refittable(e) for e in machine.effects) else None
+    retune_evidence = None
+    if retuned is not None and not above_before.any():
+        directions = max(1, int(retuned.table["determined"].sum()))
+        retune_evidence = cells.channel_evidence(residual, retuned.residual, directions)
+        if cells.above(cells.chi2(residual), settings.floor_limit, rows=True).any() or retune_evidence <= AT_FLOOR_EVIDENCE:
+            retuned = None
+    retuned_at_floor = retuned is not None and not above_before.any()
     base = retuned.machine if retuned is not None and retuned.chi2 < chi2 else machine
     evaluator = _Evaluator(Plant(base), measured, cells)
     current = evaluator.residual(()) if base is not machine else residual
@@ -1619,7 +1634,8 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     diagnosis = Diagnosis(chi2=chi2, points=residual.size, overdispersion=overdispersion, ranked=fitted,
                           base_residual=current, cells_before=cells_before,
                           base_at_floor=not cells.above(cells.chi2(current), settings.floor_limit).any(),
-                          determined_std=settings.determined_std)
+                          determined_std=settings.determined_std,
+                          retune_evidence=retune_evidence if retuned_at_floor else None)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
     # before (the close contenders of a round each so, `_choose`), and the next candidates fitted on top of that joint
     # model
@@ -1666,7 +1682,7 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
         diagnosis.verdict = "missing"
     elif diagnosis.cells_after["above_floor"].any():
         diagnosis.verdict = "unexplained"
-    elif above_before.any() and diagnosis.retune is not None and not diagnosis.retune.empty:
+    elif (above_before.any() or retuned_at_floor) and diagnosis.retune is not None and not diagnosis.retune.empty:
         diagnosis.verdict = "retune"
     else:
         diagnosis.verdict = "nothing"

@@ -354,7 +354,10 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
             names = " and ".join(f"`{a}`" for a in alike)
             lines += [_describing_function(f"part of what {names} {'takes' if len(alike) == 1 else 'take'} up"), ""]
     if diagnosis.retune is not None and not diagnosis.retune.empty:
-        lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations):", ""]
+        lines += ["**The data move parameters the model already has** (joint refit, beyond three standard deviations"
+                  + (f"; the model as it is lies within the floor, but its own parameters refitted earn BIC evidence "
+                     f"{diagnosis.retune_evidence:.4g} channel by channel, beyond the {AT_FLOOR_EVIDENCE:g} a missing "
+                     "effect needs there" if diagnosis.retune_evidence is not None else "") + "):", ""]
         lines += [f"- `{r.parameter}`: {r.start:.6g} -> {format_value(r.value, r.std)}" + (_AT_BOUND if r.at_bound else "")
                   for r in diagnosis.retune.itertuples()]
         lines += ["", "Set them where the variant takes them (its machine file, variant or update)."
