@@ -55,6 +55,7 @@ bench: $(STAMP) $(ROSS_STAMP)
 	$(BIN)/python benchmarks/bench_diagnose.py
 	$(BIN)/python benchmarks/bench_foreign_logs.py
 	$(BIN)/python benchmarks/bench_extrapolation.py
+	$(BIN)/python benchmarks/bench_amplitude_limit.py
 
 clean:
 	rm -rf results logs .snakemake

@@ -13,11 +13,13 @@ from ambid.excitation import (
     StepPlan,
     SteppedSineSettings,
     adapt_amplitude,
+    amplitude_limits,
     measurement_windows,
     run_stepped_sine,
     settings_from_config,
 )
 from ambid.logs import CHANNELS, identification_frame, read_identification_log, validate_identification_log, write_identification_log
+from ambid.plant import Plant
 from ambid.rig import RigModel, rig_from_config
 
 from conftest import ROOT
@@ -52,9 +54,23 @@ class TestAmplitudeAdaptation:
         new, accepted = adapt_amplitude(np.array([3.0, 0.05]), np.array([1e-6, 1e-3]), THESIS)
         assert accepted.all() and new.tolist() == [3.0, 0.05]  # A_max too weak, A_min too strong: saved anyway
 
+    def test_the_amplitude_is_at_most_a_fraction_of_the_bias_current(self, demo_machine):
+        # demo20: radial bias 3 A, axial 2 A; the thesis' A_max of 3 A would swing one coil's current to zero
+        settings = SteppedSineSettings(max_bias_fraction=0.5)
+        assert_allclose(amplitude_limits(demo_machine, THESIS), [3.0] * 5)
+        assert_allclose(amplitude_limits(demo_machine, settings), [1.5, 1.5, 1.5, 1.5, 1.0])
+        plan = StepPlan.for_machine(Plant(demo_machine), settings)
+        assert_allclose(plan.amplitude_max_a, np.where(plan.axis == "Z", 1.0, 1.5))
+        assert np.all(plan.initial_amplitude_a <= plan.amplitude_max_a)
+        assert plan.initial_amplitude_a.max() == pytest.approx(1.5)  # the high steps start at the limit
+        # the adaptation grows to each step's limit and accepts a weak response there
+        new, accepted = adapt_amplitude(np.array([1.4, 1.5, 0.9]), np.full(3, 1e-6), settings, np.array([1.5, 1.5, 1.0]))
+        assert_allclose(new, [1.5, 1.5, 1.0])
+        assert accepted.tolist() == [False, True, False]
+
     @pytest.mark.parametrize(
         "kwargs, key",
-        [(dict(response_min_m=6e-5), "response_max_m"), (dict(measure_periods=1), "measure_periods"), (dict(shrink=1.0), "shrink")],
+        [(dict(max_bias_fraction=1.5), "max_bias_fraction"), (dict(response_min_m=6e-5), "response_max_m"), (dict(measure_periods=1), "measure_periods"), (dict(shrink=1.0), "shrink")],
     )
     def test_bad_settings_name_the_key(self, kwargs, key):
         with pytest.raises(ConfigError, match=key):

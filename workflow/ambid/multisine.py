@@ -62,6 +62,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import ConfigError, settings_from_mapping
+from .excitation import amplitude_limits
 from .loop import axial_transfer_functions, transfer_functions
 from .machine import ALL_AXES, AXIAL_AXIS, RADIAL_AXES
 
@@ -549,11 +550,10 @@ def design_multisine(plant, settings, seed, lines_hz=None, f0_hz=None, complianc
     excited = grid.role == "excited"
     if not excited.any():
         raise ConfigError("multisine", f"no line of {f0:.4g} Hz spacing lies in the excited bands")
-    fraction = settings.coarse_bias_fraction if bias_fraction is None else bias_fraction
-    machine = plant.machine
-    bias = np.array([m.bias_current_a for m in machine.radial_electromagnets]
-                    + [machine.axial_electromagnet.bias_current_a if machine.axial_electromagnet is not None else 0.0])
-    limit = np.minimum(settings.amplitude_max_a, fraction * bias)
+    limit = amplitude_limits(plant.machine, settings,
+                             settings.coarse_bias_fraction if bias_fraction is None else bias_fraction)
+    if plant.machine.axial_electromagnet is None:
+        limit[-1] = 0.0  # no axial bearing to excite
     frequency = grid.lines[excited] * f0
     magnitude = nominal_compliance(plant, frequency) if compliance is None else np.abs(compliance(frequency))
     diagonal = np.diagonal(magnitude, axis1=1, axis2=2)  # (n, 5)

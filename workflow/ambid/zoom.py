@@ -180,14 +180,16 @@ def stepped_zoom_plan(plant, bands_hz, settings, points_per_band=15, axes=None):
     axes : sequence of str, optional
         Default the radial axes of ``settings.axes``.
     """
-    from .excitation import StepPlan, initial_amplitudes
-    from .machine import RADIAL_AXES
+    from .excitation import StepPlan, amplitude_limits, initial_amplitudes
+    from .machine import ALL_AXES, RADIAL_AXES
 
     axes = [a for a in settings.axes if a in RADIAL_AXES] if axes is None else list(axes)
     frequency = np.unique(np.concatenate([np.linspace(low, high, points_per_band) for low, high in bands_hz]))
+    limits = amplitude_limits(plant.machine, settings)
     return StepPlan(np.repeat(axes, frequency.size), np.tile(np.arange(frequency.size), len(axes)),
                     np.tile(frequency, len(axes)),
-                    np.concatenate([initial_amplitudes(plant, axis, frequency, settings) for axis in axes]))
+                    np.concatenate([initial_amplitudes(plant, axis, frequency, settings) for axis in axes]),
+                    np.repeat([limits[ALL_AXES.index(a)] for a in axes], frequency.size))
 
 
 def merge_stepped(coarse, dense):
