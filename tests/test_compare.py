@@ -1,11 +1,13 @@
 """Model against measurement: error per channel and band, at the noise floor and with a missing delay."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
-from ambid.compare import CompareError, channel_errors, model_channels, model_response, summarize
+from ambid.compare import CompareError, channel_errors, excitation_against_bias, model_channels, model_response, summarize
 from ambid.machine import RADIAL_AXES as AXES
 from ambid.effects import effect_from_config
+from ambid.logs import peak_excitation_a
 from ambid.plant import Plant
 
 F = np.linspace(1.0, 1000.0, 250)
@@ -245,3 +247,21 @@ def test_coil_currents_that_do_not_tell_the_conventions_apart_keep_the_default(d
     assert len(findings) == 1 and "do not tell the two apart" in findings[0].message
     positions_only, none = with_coil_current_sampling(demo_machine, {}, "diagnose")
     assert positions_only.coil_current_sampling == "start_of_cycle" and none == []
+
+
+def test_a_run_excited_near_the_bias_current_is_said_to_carry_more_error_than_it_states(demo_machine):
+    # demo20: radial bias 3 A, axial 2 A.  The log's peak amplitude per axis (first level only: the repeats are lower)
+    frame = pd.DataFrame({"excited_axis": ["DX", "DX", "DX", "NY", "Z"], "amplitude_a": [0.5, 3.0, 1.5, 1.5, 1.2],
+                          "level": [0, 0, 1, 0, 0]})
+    peaks = peak_excitation_a(frame)
+    assert peaks == {"DX": 3.0, "NY": 1.5, "Z": 1.2}
+    findings = excitation_against_bias(demo_machine, {"peak_excitation_a": peaks}, "compare")
+    # DX at its whole bias current and Z at 0.6 of its 2 A are warned; NY at half of its 3 A is not
+    assert [(f.subject, f.severity, f.code) for f in findings] == [("DX", "warning", "excitation_near_bias"),
+                                                                    ("Z", "warning", "excitation_near_bias")]
+    assert findings[0].value == pytest.approx(1.0) and "max_bias_fraction" in findings[0].message
+    assert "no step was repeated" in findings[0].message  # the thesis' procedure: the describing function itself
+    repeated = excitation_against_bias(demo_machine, {"peak_excitation_a": peaks, "repeated_steps": 40}, "compare")
+    assert "extrapolates the repeated steps" in repeated[0].message
+    # an FRF without amplitudes (a user's UFF58, an older FRF table) says nothing
+    assert excitation_against_bias(demo_machine, {}, "compare") == []

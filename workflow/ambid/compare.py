@@ -426,7 +426,44 @@ def for_run(machine, measured, frf_metadata, stage):
     machine, level = at_run_level(machine, frf_metadata, stage)
     machine, modes = with_enough_modes(machine, measured, stage)
     machine, sampling = with_coil_current_sampling(machine, measured, stage)
-    return machine, level + modes + sampling
+    return machine, level + excitation_against_bias(machine, frf_metadata, stage) + modes + sampling
+
+
+#: A stepped sine whose excitation exceeds this fraction of an axis' bias current is said to (`excitation_against_bias`).
+EXCITATION_BIAS_FRACTION = 0.5
+
+
+def excitation_against_bias(machine, frf_metadata, stage):
+    """A warning for each axis the run excited beyond `EXCITATION_BIAS_FRACTION` of its bias current on the drawing.
+
+    The FRF stage takes a stepped sine to zero amplitude on the ``A^2`` law of the force law's describing function
+    (`ambid.amplitude`), and states its error on that law.  Near the bias current the law fails (one coil's current
+    swings to zero): on demo20's rig at the thesis' 3 A, its whole bias, the zero-amplitude FRF kept up to 0.24 % of
+    error above 700 Hz, 10-110 times what it stated (`benchmarks/bench_amplitude_limit.py`), a droop a diagnosis can
+    read as a sensor pole.  The FRF stage is model-free and cannot tell; the machine file can.
+
+    Returns
+    -------
+    list of Finding
+    """
+    peaks = (frf_metadata or {}).get("peak_excitation_a") or {}
+    bias = dict(zip(ALL_AXES, machine.bias_currents_a))
+    repeated = (frf_metadata or {}).get("repeated_steps", 0)
+    why = ("the force law's describing function there leaves the A^2 law by which the FRF stage extrapolates the "
+           "repeated steps to zero amplitude, so the FRF carries more error than it states" if repeated else
+           "the FRF is the describing function at that amplitude (no step was repeated lower), whose error grows faster "
+           "than A^2 there and stays in it")
+    findings = []
+    for axis, amplitude in peaks.items():
+        ratio = amplitude / bias.get(axis, np.inf)
+        if ratio > EXCITATION_BIAS_FRACTION * (1 + 1e-9):
+            findings.append(Finding(
+                stage, "warning", "excitation_near_bias", axis,
+                f"the run excited {axis} at up to {amplitude:.3g} A, {ratio:.2f} of its {bias[axis]:.3g} A bias current, "
+                f"where one coil's current swings toward zero: {why} (a droop toward high frequency, which a sensor pole "
+                "imitates; benchmarks/bench_amplitude_limit.py). Identify at most half the bias current "
+                "(identification.max_bias_fraction), or read high-frequency findings with care.", float(ratio)))
+    return findings
 
 
 def model_channels(plant, frequency_hz, channels):

@@ -172,9 +172,7 @@ def amplitude_limits(machine, settings, bias_fraction=None):
     limit = np.full(len(ALL_AXES), float(settings.amplitude_max_a))
     if fraction is None:
         return limit
-    bias = np.array([m.bias_current_a for m in machine.radial_electromagnets]
-                    + [machine.axial_electromagnet.bias_current_a if machine.axial_electromagnet is not None else np.inf])
-    return np.minimum(limit, fraction * bias)
+    return np.minimum(limit, fraction * machine.bias_currents_a)
 
 
 def initial_amplitudes(plant, axis, frequency_hz, settings):

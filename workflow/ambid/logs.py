@@ -54,6 +54,7 @@ __all__ = [
     "run_matrix",
     "log_source",
     "repeated_steps",
+    "peak_excitation_a",
     "COLUMNS",
     "OPTIONAL_COLUMNS",
     "KIND",
@@ -180,6 +181,13 @@ def repeated_steps(frame):
     if "level" not in frame.columns:
         return 0
     return len(frame.loc[frame["level"] > 0, ["excited_axis", "step"]].drop_duplicates())
+
+
+def peak_excitation_a(frame):
+    """The largest excitation amplitude of each excited axis at the log's first level [A]: ``{axis: amplitude}``."""
+    first = frame if "level" not in frame.columns else frame[frame["level"] == 0]
+    peaks = first.groupby("excited_axis")["amplitude_a"].max()
+    return {str(axis): float(value) for axis, value in peaks.items()}
 
 
 def identification_frame(steps):

@@ -133,6 +133,13 @@ class Machine:
         return tuple(b.electromagnet_of(plane) for b in self.radial_bearings for plane in ("x", "y"))
 
     @property
+    def bias_currents_a(self):
+        """The drawing's bias current of each control axis, in `ALL_AXES` order [A] (infinite for Z without an axial
+        bearing)."""
+        axial = self.axial_electromagnet.bias_current_a if self.axial_electromagnet is not None else np.inf
+        return np.array([m.bias_current_a for m in self.radial_electromagnets] + [axial])
+
+    @property
     def sample_time_s(self):
         """Controller cycle [s] (the same for every axis)."""
         return self.radial_controllers[0].sample_time_s

@@ -375,10 +375,14 @@ def _misfit_change(verdict_path):
 
 
 def _warnings_block(warnings):
-    """Every warning and failure of every stage, in one table at the top of the page."""
+    """Every warning and failure of every stage, in one table at the top of the page; one row per warning, with every
+    place it was said (a run's warnings, such as its excitation level or its modes, are said by each variant's
+    comparison and diagnosis)."""
     if not warnings:
         return Text("Warnings of the stages: none (notes are where each result is quoted).")
     frame = pd.DataFrame(warnings)
+    frame = frame.groupby(["severity", "subject", "message"], sort=False, as_index=False).agg(
+        where=("where", "; ".join))[["where", "severity", "subject", "message"]]
     frame = frame.assign(order=frame["severity"].map({"failure": 0, "warning": 1})).sort_values(
         "order", kind="stable").drop(columns="order")
     return Table(frame, f"**{len(frame)} warning(s) and failure(s)** of the stages (each also where its result is "

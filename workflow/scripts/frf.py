@@ -9,7 +9,7 @@ from ambid.findings import Finding, write_findings
 from ambid.floor import FloorSettings, systematic_floor
 from ambid.frf import FRF_UNITS, channel, frf_stage
 from ambid.io import rule_log, write_parquet, write_tsv
-from ambid.logs import log_source, read_identification_log
+from ambid.logs import log_source, peak_excitation_a, read_identification_log
 from ambid.machine import RADIAL_AXES
 from ambid.plausibility import FRF_SETTINGS
 from ambid.plots import bode_measured, save_figure
@@ -27,7 +27,7 @@ if hasattr(snakemake.input, "uff"):  # run format uff: the FRFs themselves, no r
     for note in provenance["notes"]:
         log.info("%s: %s", source, note)
     table, floors = systematic_floor(table, {}, settings=floor_settings)
-    repeated = 0  # FRFs carry no repeats
+    repeated, peaks = 0, {}  # FRFs carry no repeats, no amplitudes
 else:
     frame, info = read_identification_log(snakemake.input.log)
     metadata = info["metadata"]
@@ -47,6 +47,7 @@ else:
     for finding in stage.findings:
         log.warning("%s", finding.message)
     table, floors, findings, repeated = stage.table, stage.floors, stage.findings, stage.repeated_steps
+    peaks = peak_excitation_a(frame)
     if stage.mimo is not None:
         condition = stage.mimo[3]
         log.info("MIMO: condition number of U from %.2f to %.2f (median %.2f)", condition.min(), condition.max(), np.median(condition))
@@ -80,7 +81,8 @@ write_findings(findings, snakemake.output.findings)
 estimators = sorted(set(table["estimator"]))
 write_parquet(table, snakemake.output.frf, units=FRF_UNITS, kind="frf",
               metadata={"machine": snakemake.wildcards.machine, "run": snakemake.wildcards.run,
-                        "source_log": source, "estimators": estimators, "repeated_steps": repeated})
+                        "source_log": source, "estimators": estimators, "repeated_steps": repeated,
+                        "peak_excitation_a": peaks})
 write_uff58(snakemake.output.uff, frf_channels(table), description=f"ambid {snakemake.wildcards.machine} {snakemake.wildcards.run}")
 title = f"{snakemake.wildcards.machine} {snakemake.wildcards.run}"
 dpi = snakemake.params.dpi
