@@ -64,13 +64,15 @@ class TestAmplitudeAdaptation:
         assert np.all(plan.initial_amplitude_a <= plan.amplitude_max_a)
         assert plan.initial_amplitude_a.max() == pytest.approx(1.5)  # the high steps start at the limit
         # the adaptation grows to each step's limit and accepts a weak response there
-        new, accepted = adapt_amplitude(np.array([1.4, 1.5, 0.9]), np.full(3, 1e-6), settings, np.array([1.5, 1.5, 1.0]))
+        limits = np.array([1.5, 1.5, 1.0])
+        new, accepted = adapt_amplitude(np.array([1.4, 1.5, 0.9]), np.full(3, 1e-6), settings, limits)
         assert_allclose(new, [1.5, 1.5, 1.0])
         assert accepted.tolist() == [False, True, False]
 
     @pytest.mark.parametrize(
         "kwargs, key",
-        [(dict(max_bias_fraction=1.5), "max_bias_fraction"), (dict(response_min_m=6e-5), "response_max_m"), (dict(measure_periods=1), "measure_periods"), (dict(shrink=1.0), "shrink")],
+        [(dict(max_bias_fraction=1.5), "max_bias_fraction"), (dict(response_min_m=6e-5), "response_max_m"),
+         (dict(measure_periods=1), "measure_periods"), (dict(shrink=1.0), "shrink")],
     )
     def test_bad_settings_name_the_key(self, kwargs, key):
         with pytest.raises(ConfigError, match=key):
