@@ -1618,13 +1618,14 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     # 0.0078, degenerate with the variant's own (each undetermined alone)
     retuned = joint_refit(machine, measured, (), settings, cells, alternatives=alternatives) \
         if any(_refittable(e) for e in machine.effects) else None
-    retune_evidence = None
+    retune_evidence = None  # kept only where the retune within the floor earns it
     if retuned is not None and not above_before.any():
         directions = max(1, int(retuned.table["determined"].sum()))
-        retune_evidence = cells.channel_evidence(residual, retuned.residual, directions)
-        if cells.above(cells.chi2(residual), settings.floor_limit, rows=True).any() or retune_evidence <= AT_FLOOR_EVIDENCE:
+        evidence = cells.channel_evidence(residual, retuned.residual, directions)
+        if cells.above(cells.chi2(residual), settings.floor_limit, rows=True).any() or evidence <= AT_FLOOR_EVIDENCE:
             retuned = None
-    retuned_at_floor = retuned is not None and not above_before.any()
+        else:
+            retune_evidence = evidence
     base = retuned.machine if retuned is not None and retuned.chi2 < chi2 else machine
     evaluator = _Evaluator(Plant(base), measured, cells)
     current = evaluator.residual(()) if base is not machine else residual
@@ -1635,7 +1636,7 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
                           base_residual=current, cells_before=cells_before,
                           base_at_floor=not cells.above(cells.chi2(current), settings.floor_limit).any(),
                           determined_std=settings.determined_std,
-                          retune_evidence=retune_evidence if retuned_at_floor else None)
+                          retune_evidence=retune_evidence)
     # forward selection: each chosen effect refitted jointly with the variant's own parameters and the ones chosen
     # before (the close contenders of a round each so, `_choose`), and the next candidates fitted on top of that joint
     # model
@@ -1682,7 +1683,8 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
         diagnosis.verdict = "missing"
     elif diagnosis.cells_after["above_floor"].any():
         diagnosis.verdict = "unexplained"
-    elif (above_before.any() or retuned_at_floor) and diagnosis.retune is not None and not diagnosis.retune.empty:
+    elif ((above_before.any() or retune_evidence is not None)
+          and diagnosis.retune is not None and not diagnosis.retune.empty):
         diagnosis.verdict = "retune"
     else:
         diagnosis.verdict = "nothing"
