@@ -127,8 +127,9 @@ class Sleeve:
 
     Represents lamination stacks, permanent magnets, retaining sleeves: parts
     shrunk onto the shaft that add mass and rotary inertia but carry little
-    bending load.  Their bending stiffness enters scaled by
-    ``stiffness_fraction`` (0 = pure mass) with the modulus of the host element.
+    load.  The share ``stiffness_fraction`` of their section carries it, with
+    the moduli of the host element, in bending (``E I``) and in shear (``G A``)
+    alike: 0 is pure mass, 1 makes the sleeve part of the shaft.
 
     Parameters
     ----------
@@ -367,7 +368,7 @@ class Rotor:
         -------
         dict of arrays (n_elements,)
             ``length_m``, ``bending_stiffness`` (E I + sleeve share), ``shear_parameter``
-            (phi), ``mass_per_length``, ``inertia_per_length`` (transverse, rho I),
+            (phi ``= 12 E I / (kappa G A L^2)``, the sleeve's share in ``A``), ``mass_per_length``, ``inertia_per_length`` (transverse, rho I),
             ``loss_factor``, ``youngs_modulus_pa``.
         """
         if "props" in self._cache:
@@ -386,14 +387,17 @@ class Rotor:
         bending = young * inertia
         mass_per_length = rho * area
         inertia_per_length = rho * inertia
+        shear_area = area.copy()
         for sleeve in self.sleeves:
             idx = np.asarray(sleeve.elements, dtype=int)
             s_area = np.pi / 4 * (sleeve.outer_diameter_m**2 - sleeve.inner_diameter_m**2)
             s_inertia = np.pi / 64 * (sleeve.outer_diameter_m**4 - sleeve.inner_diameter_m**4)
             mass_per_length[idx] += sleeve.density_kg_m3 * s_area
             inertia_per_length[idx] += sleeve.density_kg_m3 * s_inertia
+            # the share of the sleeve that carries load carries it in bending and in shear alike
             bending[idx] += sleeve.stiffness_fraction * young[idx] * s_inertia
-        phi = 12 * bending / (kappa * shear * area * length**2)
+            shear_area[idx] += sleeve.stiffness_fraction * s_area
+        phi = 12 * bending / (kappa * shear * shear_area * length**2)
         props = dict(
             length_m=length,
             bending_stiffness=bending,
