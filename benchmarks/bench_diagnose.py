@@ -146,7 +146,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ambid.compare import effective_shares, for_run, measured_channels, model_response
+from ambid.compare import (at_input_coupling, effective_shares, for_run, input_coupling, input_coupling_slopes,
+                           measured_channels, model_response)
 from ambid.diagnose import (INDISTINGUISHABLE_BIC, bic_evidence, diagnose, effect_label, misfit,
                             plant_with_effects)
 from ambid.effects import EFFECTS, effect_from_config
@@ -217,13 +218,15 @@ def run_case(case):
     # as rule diagnose models a run (the coil-current sampling taken from the data: the rig samples at the start of
     # the cycle)
     model, findings = for_run(machine_from_config(config), measured, {}, "diagnose")
-    diagnosis = diagnose(model, measured, shares=effective_shares(table))
+    slopes = input_coupling_slopes(table)
+    diagnosis = diagnose(model, measured, shares=effective_shares(table), coupling_slopes=slopes)
     return {"case": case, "draws": draws, "diagnosis": diagnosis, "identify_s": identified,
-            "diagnose_s": time.perf_counter() - started, "truth_evidence": truth_evidence(config, measured, effects),
+            "diagnose_s": time.perf_counter() - started,
+            "truth_evidence": truth_evidence(config, measured, effects, slopes),
             "sampling": model.coil_current_sampling, "run_findings": sorted({f.code for f in findings})}
 
 
-def truth_evidence(config, measured, effects):
+def truth_evidence(config, measured, effects, slopes=None):
     """What the hidden effects at their true parameters would earn in this log, on the diagnosis' own scale: the
     `~ambid.diagnose.bic_evidence` of their k parameters, overdispersion ``max(1, chi2_truth / N)``.
 
@@ -236,7 +239,8 @@ def truth_evidence(config, measured, effects):
     keys = {key: (frequency,) for key, (frequency, _, _) in measured.items()}
     chi2_nominal, residual = misfit(measured, model_response(plant, keys))
     hidden = [effect_from_config(entry, entry["name"]) for entry in effects]
-    chi2_truth, _ = misfit(measured, model_response(plant_with_effects(plant, hidden), keys))
+    chi2_truth, _ = misfit(at_input_coupling(measured, slopes, input_coupling(hidden)),
+                           model_response(plant_with_effects(plant, hidden), keys))
     parameters = sum(np.size(value) for entry in effects for value in entry["parameters"].values()
                      if not isinstance(value, str))
     points = residual.size
@@ -386,7 +390,8 @@ def default_machines():
         for variant in ["nominal"] + list(CONFIG["machines"][machine].get("variants") or {}):
             model = machine_from_config(read_yaml(ROOT / "results" / machine / "model" / variant / "machine.yaml"))
             started = time.perf_counter()
-            diagnosis = diagnose(model, measured, shares=effective_shares(table))
+            diagnosis = diagnose(model, measured, shares=effective_shares(table),
+                                 coupling_slopes=input_coupling_slopes(table))
             wall = time.perf_counter() - started
             said = diagnosis.summary()
             print(f"  {machine:<13} {variant:<10} {wall:6.1f} s [target <= {target:.0f} s: {'ok' if wall <= target else 'MISSED'}]"

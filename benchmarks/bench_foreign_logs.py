@@ -14,9 +14,9 @@ Scoring (printed, not asserted):
 - named: the first effect named is the hidden one (for a pair, both named); ``eddy_current`` in the generator is a
   first-order lag of the force, which is exactly a first-order ``sensor_lowpass`` on every position channel, so that
   counts as its equivalent and is tallied apart;
-- extra: effects named beside the hidden ones.  On hs_eden_like the generator's rotor is 0.05-0.1 % stiffer (it also
-  counts the sleeves' ``stiffness_fraction`` in the shear area), which the diagnosis names as
-  ``element_stiffness[motor]`` 1.0014;
+- extra: effects named beside the hidden ones.  Until stop 53 the generator's hs_eden_like rotor was 0.05-0.1 %
+  stiffer than ambid's (it counts the sleeves' ``stiffness_fraction`` in the shear area, ambid did not), which the
+  diagnosis named as ``element_stiffness[motor]`` 1.0014 beside 11 of 13 cases and on the log without an effect;
 - parameters: the joint refit's value of every hidden parameter within 2 %;
 - outside the library: "unexplained" cells remain, or nothing is named;
 - the stated standard deviations against the generator's values (|error| / std: median, share within 2, every one

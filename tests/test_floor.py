@@ -687,10 +687,44 @@ def test_a_mimo_cross_element_states_the_amplitude_error_of_its_bearings():
     assert max(worst.values()) < 3.0, worst
 
 
-def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse():
-    """`ambid.amplitude._mimo_inversion_errors` on an exact ``P = G (I + C W)``: from the four diagonals' relative
+def test_x_y_elements_at_zero_amplitude_are_stated_at_an_input_coupling_the_frf_stage_cannot_know():
+    """demo20's rig with an input cross coupling of 0.03 ahead of the force law, 150-700 Hz, the thesis' amplitude (3 A
+    on a 3 A bias: the describing function's error is large).  The x-y elements at zero amplitude, extrapolated with
+    the error the diagonals predict without a coupling, miss the linearized truth along the slope the table states by
+    12.5-16.8 standard deviations of that projection (seeds 2041-2043; 5.0-8.0 at half the bias current); read at the
+    coupling through it (`ambid.compare.at_input_coupling`), by -2.1 to 0.1 (-1.8 to 0.2)."""
+    from ambid.compare import at_input_coupling, input_coupling_slopes, measured_channels
+
+    identification = yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"]
+    settings = replace(settings_from_config(identification), axes=RADIAL_AXES, max_bias_fraction=None)
+    machine_config = yaml.safe_load((ROOT / "config/machines/demo20.yaml").read_text())
+    machine_config["frequency_grid"]["radial"].update(start_hz=150.0, stop_hz=700.0, points=16)
+    rig = hidden_effect_rig(machine_config, [{"name": "cross_coupling", "parameters": {"coefficient": 0.03}}])
+    plan = StepPlan.for_machine(Plant(machine_from_config(machine_config)), settings)
+    records, _ = run_stepped_sine(RigModel(rig), plan, settings, seed=2042)
+    table, _, _ = frf_from_log(identification_frame(records), ZERO_AMPLITUDE)
+    slopes = input_coupling_slopes(table)
+    crossed = [("DX", "DY"), ("DY", "DX"), ("NX", "NY"), ("NY", "NX")]
+    assert set(crossed) <= set(slopes) and not {key for key in slopes if key[0] == key[1]}
+    exact = RigModel(rig).sampled_frequency_response(measured_channels(table)[crossed[0]][0])
+    along = {}
+    for coupling in (0.0, 0.03):
+        measured = at_input_coupling(measured_channels(table), slopes, coupling)
+        # the misfit against the linearized truth along the slopes, in standard deviations of that projection
+        projection = [(np.real(np.conj(slopes[key]) * (values - exact[:, RADIAL_AXES.index(key[0]),
+                                                                         RADIAL_AXES.index(key[1])])) / std**2,
+                       np.abs(slopes[key]) ** 2 / std**2)
+                      for key, (_, values, std) in measured.items() if key in crossed]
+        along[coupling] = sum(p.sum() for p, _ in projection) / np.sqrt(sum(w.sum() for _, w in projection) / 2)
+    assert along[0.0] < -10 and abs(along[0.03]) < 2, along
+
+
+@pytest.mark.parametrize("coupling", [0.0, 0.05])
+def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse(coupling):
+    """`ambid.amplitude._mimo_inversion_errors` on an exact ``P = G (I + K^-1 C W)``: from the four diagonals' relative
     errors alone it gives every element's error, exactly (the Newton steps: within 1e-6 of it; the first-order solution
-    alone errs by about ``C``, 1e-3 of it here)."""
+    alone errs by about ``C``, 1e-3 of it here).  ``K = I + c (E_xy + E_yx)`` is an input cross coupling ahead of the
+    force law; told none where there is one, the x-y elements' errors are wrong by more than a tenth of themselves."""
     from ambid.amplitude import _mimo_inversion_errors
 
     rng = np.random.default_rng(3)
@@ -698,7 +732,8 @@ def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse():
     plant = (rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4))) * 0.1 + 2 * np.eye(4)
     inputs = (rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4))) * 0.2 + np.eye(4)
     column = 1e-3 * (rng.normal(size=(n, 4)) + 1j * rng.normal(size=(n, 4)))
-    error = plant @ (column[:, :, None] * np.linalg.inv(inputs))  # G C W
+    coupled = np.eye(4) + coupling * np.kron(np.eye(2), [[0.0, 1.0], [1.0, 0.0]])  # (DX, DY), (NX, NY)
+    error = plant @ np.linalg.solve(coupled, column[:, :, None] * np.linalg.inv(inputs))  # G K^-1 C W
     measured = plant + error
     frequency = np.arange(1.0, n + 1)
     values, channels, row = [], {}, 0
@@ -714,12 +749,17 @@ def test_the_mimo_inversion_errors_follow_the_diagonals_through_u_inverse():
     for r, axis in enumerate(axes):
         for b, other in enumerate(axes):
             arrays[axis][1][:, CHANNELS.index(f"U2_{other}")] = inputs[:, b, r]
-    predicted = _mimo_inversion_errors(channels, np.concatenate(values), arrays)
+    predicted = _mimo_inversion_errors(channels, np.concatenate(values), arrays, input_coupling=coupling)
     assert len(predicted) == 12
     for (_, output, input_axis), (value, variance, systematic) in predicted.items():
         truth = error[:, axes.index(output), axes.index(input_axis)]
         assert np.all(np.abs(value - truth) < 1e-6 * np.abs(truth)), (output, input_axis)
         assert np.all(variance > 0) and np.all(systematic == 0)
+    if coupling:
+        uncoupled = _mimo_inversion_errors(channels, np.concatenate(values), arrays)
+        for output, input_axis in (("DX", "DY"), ("DY", "DX"), ("NX", "NY"), ("NY", "NX")):
+            truth = error[:, axes.index(output), axes.index(input_axis)]
+            assert np.max(np.abs(uncoupled[("mimo", output, input_axis)][0] - truth) / np.abs(truth)) > 0.1
     arrays[axes[0]][1][2, CHANNELS.index(f"U2_{axes[1]}")] = np.nan  # a run without the other axes' inputs: nothing
     assert _mimo_inversion_errors(channels, np.concatenate(values), arrays) == {}
 

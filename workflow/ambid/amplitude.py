@@ -84,6 +84,10 @@ NOISE_DOF = 4
 #: (`amplitude_dependence`).
 MEASURED_KAPPA = 5.0
 
+#: The input cross coupling at which `zero_amplitude` differences `_mimo_inversion_errors` for its slope (the error
+#: is smooth in it: a step of 1e-3 against the library's range of +-0.5).
+COUPLING_STEP = 1e-3
+
 #: A MIMO cross element's pairs state a departure from the error the diagonals predict for it where they put it this
 #: many standard deviations beyond their noise (`_structured_zero`; beyond `MEASURED_KAPPA` they refute it).
 DEPARTURE = 2.0
@@ -217,7 +221,7 @@ def _follows_response(log_frequency, repeated, coefficient, variance, values, br
     return relative
 
 
-def _mimo_inversion_errors(channels, values, arrays):
+def _mimo_inversion_errors(channels, values, arrays, input_coupling=0.0):
     """The describing function's error in every MIMO element, from the four diagonal elements' measured dependence.
 
     The run exciting axis ``r`` measures the plant at its own amplitudes: the
@@ -242,6 +246,16 @@ def _mimo_inversion_errors(channels, values, arrays):
     rig without a hidden effect it made a 0.09 mm noncollocation the lead at 32
     chi2 units); and ``c`` gives every element.  ``W`` is the measured one, and
     the noise the diagonals' ``delta`` carry propagates to first order.
+
+    With an ``input_coupling`` ``c`` (`ambid.effects.CrossCoupling` on the input
+    side: the force-producing currents are ``K = I + c (E_xy + E_yx)`` times the
+    commands) the force law changes run ``r``'s force current at axis ``r``, so
+    its error is ``G K^-1 e_r`` and not ``G e_r``: ``P = G (I + K^-1 C W)``.  At an
+    x-y element, which the coupling makes (``~ c G_xx``), the difference is as
+    large as its whole error: on demo20's rig with ``c`` = 0.03 the prediction
+    without it is 0.4 % of the element off, and the suite's input couplings read
+    1-2 % high, up to 9.7 standard deviations (stop 52).  The FRF stage does not
+    know ``c``; `zero_amplitude` states how the zero-amplitude values move with it.
 
     Returns
     -------
@@ -271,20 +285,24 @@ def _mimo_inversion_errors(channels, values, arrays):
     delta = np.stack([d["correction"] for d in diagonal], axis=1)
     delta_variance = np.stack([d["correction_variance"] for d in diagonal], axis=1)
     delta_systematic = np.stack([d["relative_error"] for d in diagonal], axis=1)
-    jacobian = np.einsum("ner,nre->ner", plant, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
+    identity = np.eye(len(axes))
+    uncoupled = np.linalg.inv(identity + input_coupling * np.kron(np.eye(2), [[0.0, 1.0], [1.0, 0.0]]))  # K^-1
+    coupled = plant @ uncoupled  # P K^-1: the error of run r lies along its column r
+    jacobian = np.einsum("ner,nre->ner", coupled, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
     try:
         solve = np.linalg.inv(jacobian)
-        column, identity = np.einsum("ned,nd->ne", solve, delta), np.eye(len(axes))
+        column = np.einsum("ned,nd->ne", solve, delta)
         for _ in range(4):
-            linearized = plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
+            linearized = plant @ np.linalg.inv(identity + uncoupled @ (column[:, :, None] * inverse))
             column -= np.einsum("ned,nd->ne", solve, diagonal_plant / np.einsum("nee->ne", linearized) - 1 - delta)
-        error = plant - plant @ np.linalg.inv(identity + column[:, :, None] * inverse)
+        error = plant - plant @ np.linalg.inv(identity + uncoupled @ (column[:, :, None] * inverse))
     except np.linalg.LinAlgError:
         return {}
     if not np.all(np.isfinite(error)):
         return {}
-    # E[o, e] = sum_r P[o, r] W[r, e] c_r to first order: the squared sensitivity of E[o, e] to each diagonal's delta_d
-    weight = np.abs(np.einsum("nor,nre,nrd->noed", plant, inverse, solve)) ** 2
+    # E[o, e] = sum_r (P K^-1)[o, r] W[r, e] c_r to first order: the squared sensitivity of E[o, e] to each diagonal's
+    # delta_d
+    weight = np.abs(np.einsum("nor,nre,nrd->noed", coupled, inverse, solve)) ** 2
     variance = np.einsum("noed,nd->noe", weight, delta_variance)
     systematic = np.sqrt(np.einsum("noed,nd->noe", weight, delta_systematic**2))
     return {keys[o][e]: (error[:, o, e], variance[:, o, e], systematic[:, o, e])
@@ -367,7 +385,11 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         the covariances of the other points' that share it, what a cell's chance
         limit takes its noise estimate's degrees of freedom from); the others keep
         theirs (1 and 0 from `ambid.frf.frf_table`: the sharing of their pooled
-        noise estimates is not counted).
+        noise estimates is not counted).  A MIMO cross element that took the
+        diagonals' prediction (`_structured_zero`) states in
+        ``input_coupling_slope_re`` / ``_im`` how its value moves per unit input
+        cross coupling (`_mimo_inversion_errors`), what a model with one reads it
+        at (`ambid.compare.at_input_coupling`); 0 elsewhere.
     extrapolated : numpy.ndarray of bool
         Which rows took it.
     """
@@ -438,12 +460,16 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
             zero_repeated=zero_repeated, zero_repeated_noise=np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2),
             pair_change=lever * (g - g1), pair_change_variance=lever**2 * (s**2 + s1**2))
     inversion = _mimo_inversion_errors(channels, values, arrays)
+    coupled = _mimo_inversion_errors(channels, values, arrays, input_coupling=COUPLING_STEP) if inversion else {}
+    slopes = np.zeros(len(table), dtype=complex)
     for key, channel in channels.items():
         rows, repeated = channel["rows"], channel["repeated"]
         structured = _structured_zero(channel, inversion.get(key), values[rows], noise[rows])
         if structured is not None:
             zero, zero_noise, zero_systematic = structured
             zero_noise = np.hypot(noise[rows], zero_noise)
+            if key in coupled:  # the zero-amplitude value is the measured one less the error: it moves against it
+                slopes[rows] = -(coupled[key][0] - inversion[key][0]) / COUPLING_STEP
         else:
             g_all = channel["values"]
             zero = g_all / (1 + channel["correction"])
@@ -468,6 +494,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
     table["re"], table["im"] = new_values.real, new_values.imag
     table["std"], table["systematic_std"] = new_noise, new_systematic
     table["effective_share"], table["variance_error"] = shares, variance_errors
+    table["input_coupling_slope_re"], table["input_coupling_slope_im"] = slopes.real, slopes.imag
     return table, extrapolated
 
 

@@ -39,7 +39,8 @@ from .machine import ALL_AXES, AXIAL_AXIS, COIL_CURRENT_SAMPLING, RADIAL_AXES
 from .findings import Finding
 from .plant import Plant, zoh_discretize
 
-__all__ = ["CompareError", "measured_channels", "PointShares", "effective_shares", "model_response", "model_channels",
+__all__ = ["CompareError", "measured_channels", "PointShares", "effective_shares", "input_coupling_slopes",
+           "input_coupling", "at_input_coupling", "model_response", "model_channels",
            "channel_errors", "summarize", "current_channel", "channel_family", "truncation_error", "enough_modes",
            "with_enough_modes", "at_run_level",
            "for_run", "sampled_chain", "coil_current_sampling_fit", "with_coil_current_sampling"]
@@ -142,6 +143,45 @@ def effective_shares(table):
         ``(output, input) -> PointShares``.
     """
     return {key: PointShares(*channel(table, *row, share=True)[-2:]) for key, row in _compared(table).items()}
+
+
+def input_coupling_slopes(table):
+    """How each channel's values at zero amplitude move per unit input cross coupling, where they do.
+
+    The FRF stage extrapolates a MIMO cross element to zero amplitude with the
+    error the four diagonal elements predict for it, which depends on an input
+    cross coupling it cannot know (`ambid.amplitude._mimo_inversion_errors`); it
+    states the derivative in the table (``input_coupling_slope_re`` / ``_im``).
+
+    Returns
+    -------
+    dict
+        ``(output, input) -> complex array`` in `measured_channels`' order, for
+        the channels with a nonzero slope (none for a table of another writer or
+        a run without repeated steps).
+    """
+    out = {}
+    for key, row in _compared(table).items():
+        slope = channel(table, *row, coupling=True)[-1]
+        if np.any(slope != 0):
+            out[key] = slope
+    return out
+
+
+def input_coupling(effects):
+    """The input cross coupling of ``effects``: the sum of their input-side ``cross_coupling`` coefficients (two
+    couplings in series, ``(I + a S)(I + b S)``, are ``a + b`` to first order)."""
+    return float(sum(e.coefficient for e in effects if e is not None and e.name == "cross_coupling"
+                     and e.side == "input"))
+
+
+def at_input_coupling(measured, slopes, coefficient):
+    """`measured_channels` as a model with input cross coupling ``coefficient`` reads them: each channel of
+    ``slopes`` (`input_coupling_slopes`) moved by ``coefficient`` times its slope; the others as they are."""
+    if not slopes or coefficient == 0:
+        return measured
+    return {key: (frequency, values + coefficient * slopes[key], std) if key in slopes else (frequency, values, std)
+            for key, (frequency, values, std) in measured.items()}
 
 
 def model_response(plant, channels):

@@ -72,7 +72,7 @@ import pandas as pd
 import scipy.optimize
 import scipy.special
 
-from .compare import channel_family, model_response
+from .compare import channel_family, input_coupling, model_response
 from .effects import EFFECTS
 from .errors import AmbidError, ConfigError, ModelError
 from .machine import ALL_AXES
@@ -293,7 +293,7 @@ class _Cells:
     physics it does.
     """
 
-    def __init__(self, measured, min_points=20, shares=None):
+    def __init__(self, measured, min_points=20, shares=None, coupling_slopes=None):
         families, outputs = {}, {}
         for key, (frequency, _, _) in measured.items():
             family = channel_family(key[0])
@@ -355,6 +355,15 @@ class _Cells:
         with np.errstate(divide="ignore"):
             self.estimate_dof = np.where(variance_error > 0, 2 * self.points**2 / variance_error, np.inf)
         self.chance = chance_limit(self.noise_points, estimate_dof=self.estimate_dof)  # fixed by the cells: once
+        # how the points' values at zero amplitude move per unit input cross coupling
+        # (`ambid.compare.input_coupling_slopes`)
+        slopes = coupling_slopes or {}
+        for key, slope in slopes.items():
+            if key not in measured or np.shape(slope) != measured[key][0].shape or not np.all(np.isfinite(slope)):
+                raise DiagnoseError(f"channel {key[0]}/{key[1]}: its input-coupling slope must be finite, one per "
+                                    "point of a measured channel")
+        self.coupling_slope = (np.concatenate([np.asarray(slopes.get(key, np.zeros(f.size)), dtype=complex)
+                                               for key, (f, _, _) in measured.items()]) if slopes else None)
 
     def limit(self, limit):
         """Each cell's ``chi2`` per point above the floor: ``max(limit, chance_limit)`` of its noise's effective points
@@ -509,18 +518,28 @@ def plant_with_effects(plant, effects, structures=None):
 
 
 class _Evaluator:
-    """Residuals of a base plant with effects added; counts the evaluations."""
+    """Residuals of a base plant with effects added; counts the evaluations.
+
+    The measured values are read at the model's input cross coupling where the run's cross elements at zero
+    amplitude depend on it (``cells.coupling_slope``, `measured_values`).
+    """
 
     def __init__(self, plant, measured, cells):
         self.plant = plant
         self.measured = measured
         self.cells = cells
+        self.coupling = input_coupling(plant.machine.effects)
         self.values = np.concatenate([values for _, values, _ in measured.values()])
         self.std = np.concatenate([std for _, _, std in measured.values()])
         with np.errstate(over="ignore"):  # a value at zero against its uncertainty: infinite, the robust weight 0
             self.relative = self.std / np.maximum(np.abs(self.values), 1e-300)
         self.evaluations = 0
         self.structures = {}  # plants by their structure effects (`plant_with_effects`)
+
+    def measured_values(self, effects):
+        """The measured values as the base plant with ``effects`` reads them: at its input cross coupling."""
+        slope = self.cells.coupling_slope
+        return self.values if slope is None else self.values + (self.coupling + input_coupling(effects)) * slope
 
     def predicted(self, effects):
         self.evaluations += 1
@@ -529,7 +548,7 @@ class _Evaluator:
 
     def residual(self, effects):
         predicted = self.predicted(effects)
-        residual = (predicted - self.values) / self.std
+        residual = (predicted - self.measured_values(effects)) / self.std
         if not np.all(np.isfinite(residual)):
             raise DiagnoseError("the model's response is not finite on the measured frequencies")
         return residual
@@ -541,11 +560,11 @@ class _Evaluator:
         ``w = 1 / (rel^2 + smoothing^2)`` (``rel = s / |G_m|``) and ``g`` fading the phase
         where either response is within the uncertainty ``s``.
         """
-        predicted = self.predicted(effects)
-        p, v, s = np.abs(predicted), np.abs(self.values), self.std
+        predicted, values = self.predicted(effects), self.measured_values(effects)
+        p, v, s = np.abs(predicted), np.abs(values), self.std
         weight = 1.0 / np.sqrt(self.relative**2 + smoothing**2)
         magnitude = np.log((p + s) / (v + s))
-        phase = np.angle(predicted * np.conj(self.values)) * (p / (p + s)) * (v / (v + s))
+        phase = np.angle(predicted * np.conj(values)) * (p / (p + s)) * (v / (v + s))
         out = np.concatenate([weight * magnitude, weight * phase])
         if not np.all(np.isfinite(out)):
             raise DiagnoseError("the model's response is not finite on the measured frequencies")
@@ -694,7 +713,7 @@ def _weak_housing_start(evaluator, candidate, base=()):
     reference = EFFECTS["foundation_mode"](mass_kg=mass_ref, frequency_hz=1e4, damping_ratio=1.0)
     try:
         predicted = evaluator.predicted(base)
-        residual = (predicted - evaluator.values) / evaluator.std
+        residual = (predicted - evaluator.measured_values(base)) / evaluator.std
         shape = (evaluator.residual((*base, reference)) - residual) * mass_ref * (w_ref**2 - w**2 + 2j * w_ref * w)
     except (ConfigError, ModelError, DiagnoseError, np.linalg.LinAlgError):
         return None
@@ -1577,7 +1596,8 @@ def _prune(machine, measured, chosen, settings, cells, joint, alternatives=()):
     return kept, joint, tuple(dropped)
 
 
-def diagnose(machine, measured, candidates=None, settings=None, alternatives=(), shares=None, **overrides):
+def diagnose(machine, measured, candidates=None, settings=None, alternatives=(), shares=None, coupling_slopes=None,
+             **overrides):
     """Fit every candidate effect on top of ``machine``, choose the missing ones, refit them jointly.
 
     Parameters
@@ -1596,6 +1616,9 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     shares : dict, optional
         `ambid.compare.effective_shares` of the run (``PointShares``, or an array of shares alone, per channel): what
         its points count for each cell's chance limit (none: every point an independent one, its variance known).
+    coupling_slopes : dict, optional
+        `ambid.compare.input_coupling_slopes` of the run: how its cross elements at zero amplitude move with an
+        input cross coupling, read at each model's own (none: they do not move).
 
     Returns
     -------
@@ -1606,7 +1629,7 @@ def diagnose(machine, measured, candidates=None, settings=None, alternatives=(),
     settings = replace(settings or DiagnoseSettings(), **overrides)
     if not measured:
         raise DiagnoseError("no measured channel to diagnose")
-    cells = _Cells(measured, shares=shares)
+    cells = _Cells(measured, shares=shares, coupling_slopes=coupling_slopes)
     residual = _Evaluator(Plant(machine), measured, cells).residual(())
     chi2 = float(np.vdot(residual, residual).real)
     cells_before = cells.frame(residual, settings.floor_limit)

@@ -162,7 +162,9 @@ def mimo_etfe(arrays, axes=RADIAL_AXES, relative_frequency_tolerance=1e-6, sourc
 FRF_UNITS = {"frequency_hz": "Hz", "re": "m/A (A/A: current)", "im": "m/A (A/A: current)", "std": "m/A (A/A: current)",
              "systematic_std": "m/A (A/A: current)", "condition": "-",
              "effective_share": "- (share of an independent point)",
-             "variance_error": "- (variance of the stated variance's relative error, with its shared covariances)"}
+             "variance_error": "- (variance of the stated variance's relative error, with its shared covariances)",
+             "input_coupling_slope_re": "m/A per unit input cross coupling",
+             "input_coupling_slope_im": "m/A per unit input cross coupling"}
 
 
 def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
@@ -171,7 +173,8 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it), ``effective_share`` (1 here: the
     share of an independent point a row's error carries, below 1 where `ambid.amplitude.zero_amplitude` makes rows
     share their repeats' noise) and ``variance_error`` (0 here: how uncertain a row's stated variance is, where
-    `ambid.amplitude.zero_amplitude` states it from shared noise estimates)."""
+    `ambid.amplitude.zero_amplitude` states it from shared noise estimates), ``input_coupling_slope_re`` / ``_im``
+    (0 here: how a row's value at zero amplitude moves with an input cross coupling the FRF stage cannot know)."""
     parts = []
     for (output, input_axis), (frequency, a, std) in (current or {}).items():
         parts.append(pd.DataFrame({"estimator": "current", "output": output, "input": input_axis, "frequency_hz": frequency,
@@ -186,7 +189,8 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
                 parts.append(pd.DataFrame({"estimator": "mimo", "output": output, "input": input_axis, "frequency_hz": frequency,
                                            "re": plant[:, i, j].real, "im": plant[:, i, j].imag, "std": std[:, i, j],
                                            "condition": condition}))
-    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan, effective_share=1.0, variance_error=0.0)
+    return pd.concat(parts, ignore_index=True).assign(systematic_std=np.nan, effective_share=1.0, variance_error=0.0,
+                                                      input_coupling_slope_re=0.0, input_coupling_slope_im=0.0)
 
 
 def frf_from_log(frame, floor_settings=None, source="identification log", estimator="mimo"):
@@ -300,11 +304,12 @@ def radial_estimator(table):
     return "mimo" if (table["estimator"] == "mimo").any() else "siso"
 
 
-def channel(table, estimator, output, input_axis, systematic=False, share=False):
+def channel(table, estimator, output, input_axis, systematic=False, share=False, coupling=False):
     """Frequencies, complex values and standard deviations of one channel of an `frf_table`.
 
     With ``systematic``, also the ``systematic_std`` (NaN where the table has none); with ``share``, also the
-    ``effective_share`` and the ``variance_error`` (1 and 0 where the table has none).
+    ``effective_share`` and the ``variance_error`` (1 and 0 where the table has none); with ``coupling``, also the
+    complex ``input_coupling_slope`` (0 where the table has none).
     """
     rows = table[(table["estimator"] == estimator) & (table["output"] == output) & (table["input"] == input_axis)]
     rows = rows.sort_values("frequency_hz")
@@ -317,4 +322,8 @@ def channel(table, estimator, output, input_axis, systematic=False, share=False)
                 else np.ones(len(rows)),
                 rows["variance_error"].to_numpy(dtype=float) if "variance_error" in rows.columns
                 else np.zeros(len(rows)))
+    if coupling:
+        out += ((rows["input_coupling_slope_re"].to_numpy(dtype=float)
+                 + 1j * rows["input_coupling_slope_im"].to_numpy(dtype=float))
+                if "input_coupling_slope_re" in rows.columns else np.zeros(len(rows), dtype=complex),)
     return out

@@ -1,6 +1,7 @@
 """Rule `compare`: one model variant against one identification run -> errors per channel, frequency and band, figures."""
 
-from ambid.compare import channel_errors, for_run, measured_channels, model_response, summarize
+from ambid.compare import (at_input_coupling, channel_errors, for_run, input_coupling, input_coupling_slopes,
+                           measured_channels, model_response, summarize)
 from ambid.findings import write_findings
 from ambid.io import read_parquet, read_yaml, rule_log, write_parquet, write_tsv
 from ambid.machine import machine_from_config
@@ -18,6 +19,7 @@ machine, findings = for_run(machine, measured, info["metadata"], "compare")
 write_findings(findings, snakemake.output.findings)
 for finding in findings:
     log.info(finding.message)
+measured = at_input_coupling(measured, input_coupling_slopes(table), input_coupling(machine.effects))
 model = model_response(Plant(machine), measured)
 errors = channel_errors(measured, model)
 bands = settings.get("bands_hz")

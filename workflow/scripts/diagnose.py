@@ -2,7 +2,8 @@
 
 import pandas as pd
 
-from ambid.compare import effective_shares, for_run, measured_channels, model_response
+from ambid.compare import (at_input_coupling, effective_shares, for_run, input_coupling, input_coupling_slopes,
+                           measured_channels, model_response)
 from ambid.diagnose import JOINT_COLUMNS, DiagnoseSettings, diagnose, plant_with_effects
 from ambid.diagnosis_report import diagnosis_findings, diagnosis_report
 from ambid.errors import settings_from_mapping
@@ -27,7 +28,10 @@ alternatives = ()
 if "run_update" in snakemake.input.keys():  # the variant takes another run's update: the refit also starts from this one's
     update = machine_from_config(read_yaml(snakemake.input.run_update), name=machine_name, source=snakemake.input.run_update)
     alternatives = ((f"run {run}'s own update", [e for e in update.effects if e.name in UPDATED_EFFECTS]),)
-diagnosis = diagnose(machine, measured, settings=settings, alternatives=alternatives, shares=effective_shares(table))
+slopes = input_coupling_slopes(table)
+diagnosis = diagnose(machine, measured, settings=settings, alternatives=alternatives, shares=effective_shares(table),
+                     coupling_slopes=slopes)
+measured = at_input_coupling(measured, slopes, input_coupling(machine.effects))  # as the variant reads them
 plant = Plant(machine)
 model = model_response(plant, measured)
 candidates, text = diagnosis_report(diagnosis, plant, measured, bands, f"{machine_name}, run {run}, model {variant}",
