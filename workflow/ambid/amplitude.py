@@ -286,23 +286,23 @@ def _mimo_inversion_errors(channels, values, arrays, input_coupling=0.0):
     delta_variance = np.stack([d["correction_variance"] for d in diagonal], axis=1)
     delta_systematic = np.stack([d["relative_error"] for d in diagonal], axis=1)
     identity = np.eye(len(axes))
-    uncoupled = np.linalg.inv(identity + input_coupling * np.kron(np.eye(2), [[0.0, 1.0], [1.0, 0.0]]))  # K^-1
-    coupled = plant @ uncoupled  # P K^-1: the error of run r lies along its column r
-    jacobian = np.einsum("ner,nre->ner", coupled, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
+    to_force = np.linalg.inv(identity + input_coupling * np.kron(np.eye(2), [[0.0, 1.0], [1.0, 0.0]]))  # K^-1
+    along_runs = plant @ to_force  # P K^-1: run r's error lies along its column r
+    jacobian = np.einsum("ner,nre->ner", along_runs, inverse) / diagonal_plant[:, :, None]  # delta = jacobian @ c
     try:
         solve = np.linalg.inv(jacobian)
         column = np.einsum("ned,nd->ne", solve, delta)
         for _ in range(4):
-            linearized = plant @ np.linalg.inv(identity + uncoupled @ (column[:, :, None] * inverse))
+            linearized = plant @ np.linalg.inv(identity + to_force @ (column[:, :, None] * inverse))
             column -= np.einsum("ned,nd->ne", solve, diagonal_plant / np.einsum("nee->ne", linearized) - 1 - delta)
-        error = plant - plant @ np.linalg.inv(identity + uncoupled @ (column[:, :, None] * inverse))
+        error = plant - plant @ np.linalg.inv(identity + to_force @ (column[:, :, None] * inverse))
     except np.linalg.LinAlgError:
         return {}
     if not np.all(np.isfinite(error)):
         return {}
     # E[o, e] = sum_r (P K^-1)[o, r] W[r, e] c_r to first order: the squared sensitivity of E[o, e] to each diagonal's
     # delta_d
-    weight = np.abs(np.einsum("nor,nre,nrd->noed", coupled, inverse, solve)) ** 2
+    weight = np.abs(np.einsum("nor,nre,nrd->noed", along_runs, inverse, solve)) ** 2
     variance = np.einsum("noed,nd->noe", weight, delta_variance)
     systematic = np.sqrt(np.einsum("noed,nd->noe", weight, delta_systematic**2))
     return {keys[o][e]: (error[:, o, e], variance[:, o, e], systematic[:, o, e])
@@ -460,7 +460,7 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
             zero_repeated=zero_repeated, zero_repeated_noise=np.sqrt((lever - 1) ** 2 * s**2 + lever**2 * s1**2),
             pair_change=lever * (g - g1), pair_change_variance=lever**2 * (s**2 + s1**2))
     inversion = _mimo_inversion_errors(channels, values, arrays)
-    coupled = _mimo_inversion_errors(channels, values, arrays, input_coupling=COUPLING_STEP) if inversion else {}
+    stepped = _mimo_inversion_errors(channels, values, arrays, input_coupling=COUPLING_STEP) if inversion else {}
     slopes = np.zeros(len(table), dtype=complex)
     for key, channel in channels.items():
         rows, repeated = channel["rows"], channel["repeated"]
@@ -468,8 +468,8 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         if structured is not None:
             zero, zero_noise, zero_systematic = structured
             zero_noise = np.hypot(noise[rows], zero_noise)
-            if key in coupled:  # the zero-amplitude value is the measured one less the error: it moves against it
-                slopes[rows] = -(coupled[key][0] - inversion[key][0]) / COUPLING_STEP
+            if key in stepped:  # the zero-amplitude value is the measured one less the error: it moves against it
+                slopes[rows] = -(stepped[key][0] - inversion[key][0]) / COUPLING_STEP
         else:
             g_all = channel["values"]
             zero = g_all / (1 + channel["correction"])
