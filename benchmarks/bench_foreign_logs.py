@@ -42,6 +42,11 @@ the sensor gain is "unexplained misfit: positions output NX (all bands)" on demo
 that row on hs, outside 3 of 3 on both machines (seeds 2, 3 and 4); the second-order amplifier's currents are read
 as averaged over the cycle (they were read as sampled at its start) with a ``coil_current_loop`` note naming the
 loop; the library cases as before.
+Stop 53 (ambid's FEM counts the sleeves' ``stiffness_fraction`` in the shear area too), seed 2: hs_eden_like 13 of
+13, extra effects 11 -> 0, its log without an effect "nothing" (was the motor named), the sensor gain "unexplained"
+with nothing named (was ``element_stiffness[nde_amb]``), the gyroscopic speed -0.02 % (+0.16 %, 10.5 std); the
+motor's scale -0.04 % and +0.04 % off at 16.6 and 16.9 std (was 40 and 69.7): the generator scales E and keeps G,
+ambid scales both (`ambid.effects.ElementStiffness`), as on demo20 (10.9 and 9.7, unchanged).
 """
 
 import contextlib

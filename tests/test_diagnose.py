@@ -824,8 +824,9 @@ def test_cross_elements_at_zero_amplitude_are_read_at_each_models_input_coupling
     extrapolated = at_input_coupling(measured, slopes, -0.03)
     assert at_input_coupling(extrapolated, slopes, 0.0) is extrapolated
     assert all(np.allclose(at_input_coupling(extrapolated, slopes, 0.03)[key][1], measured[key][1]) for key in measured)
+    coupling = [c for c in candidate_space(demo) if c.label == "cross_coupling[input]"]
     for given, within in ((None, False), (slopes, True)):  # (read as they are; at each model's coupling)
-        diagnosis = diagnose(demo, extrapolated, coupling_slopes=given)
+        diagnosis = diagnose(demo, extrapolated, candidates=coupling, coupling_slopes=given)
         assert [f.candidate.label for f in diagnosis.sequence] == ["cross_coupling[input]"]
         row = diagnosis.joint.table.iloc[0]
         error = abs(row["value"] / 0.03 - 1)

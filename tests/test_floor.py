@@ -730,7 +730,8 @@ def test_beside_an_anti_resonance_the_cross_elements_take_their_own_pairs():
 
     config = yaml.safe_load((ROOT / "config/machines/hs_eden_like.yaml").read_text())
     config["frequency_grid"]["radial"]["points"], config["frequency_grid"]["axial"]["points"] = 80, 26
-    settings = settings_from_config(yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"])
+    settings = replace(settings_from_config(yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"]),
+                       axes=RADIAL_AXES)
     rig = hidden_effect_rig(config, [])
     table = identify_on_rig(rig, config, settings, seed=2056, floor_settings=ZERO_AMPLITUDE)
     assert LINEAR_DELTA == 0.1
