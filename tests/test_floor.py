@@ -691,8 +691,8 @@ def test_x_y_elements_at_zero_amplitude_are_stated_at_an_input_coupling_the_frf_
     """demo20's rig with an input cross coupling of 0.03 ahead of the force law, 150-700 Hz, the thesis' amplitude (3 A
     on a 3 A bias: the describing function's error is large).  The x-y elements at zero amplitude, extrapolated with
     the error the diagonals predict without a coupling, miss the linearized truth along the slope the table states by
-    12.5-16.8 standard deviations of that projection (seeds 2041-2043; 5.0-8.0 at half the bias current); read at the
-    coupling through it (`ambid.compare.at_input_coupling`), by -2.1 to 0.1 (-1.8 to 0.2)."""
+    12.5-16.3 standard deviations of that projection (seeds 2041-2043; 4.4-8.2 at half the bias current); read at the
+    coupling through it (`ambid.compare.at_input_coupling`), by -2.2 to 0.1 (-2.2 to 0.2)."""
     from ambid.compare import at_input_coupling, input_coupling_slopes, measured_channels
 
     identification = yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"]
