@@ -345,7 +345,7 @@ def _structured_zero(channel, inversion, measured, noise):
     Returns
     -------
     tuple or None
-        ``(zero, noise, systematic)`` at the channel's rows, NaN where the prediction is (`LINEAR_DELTA`);
+        ``(zero, noise, systematic)`` at the channel's rows, NaN where there is no prediction (`LINEAR_DELTA`);
         ``noise`` is the prediction's only (the measured point's adds to it).
     """
     repeated = channel["repeated"]
