@@ -730,8 +730,8 @@ def test_beside_an_anti_resonance_the_cross_elements_take_their_own_pairs():
 
     config = yaml.safe_load((ROOT / "config/machines/hs_eden_like.yaml").read_text())
     config["frequency_grid"]["radial"]["points"], config["frequency_grid"]["axial"]["points"] = 80, 26
-    settings = replace(settings_from_config(yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"]),
-                       axes=RADIAL_AXES)
+    identification = yaml.safe_load((ROOT / "config/config.yaml").read_text())["identification"]
+    settings = replace(settings_from_config(identification), axes=RADIAL_AXES)
     rig = hidden_effect_rig(config, [])
     table = identify_on_rig(rig, config, settings, seed=2056, floor_settings=ZERO_AMPLITUDE)
     assert LINEAR_DELTA == 0.1
@@ -745,7 +745,8 @@ def test_beside_an_anti_resonance_the_cross_elements_take_their_own_pairs():
             rows = mimo[(mimo["output"] == output) & (mimo["input"] == input_axis)]
             exact = truth[:, RADIAL_AXES.index(output), RADIAL_AXES.index(input_axis)]
             stated = np.hypot(rows["std"], rows["systematic_std"]).to_numpy()
-            worst[(output, input_axis)] = float(np.max(np.abs((rows["re"] + 1j * rows["im"]).to_numpy() - exact) / stated))
+            values = (rows["re"] + 1j * rows["im"]).to_numpy()
+            worst[(output, input_axis)] = float(np.max(np.abs(values - exact) / stated))
             if (output, input_axis) == ("DX", "NX"):
                 at = np.argmin(np.abs(rows["frequency_hz"].to_numpy() - 579.4))
                 slope = complex(rows["input_coupling_slope_re"].iloc[at], rows["input_coupling_slope_im"].iloc[at])

@@ -150,9 +150,9 @@ def test_a_round_chosen_before_a_later_effect_was_in_the_model_is_revisited(tmp_
     below 750 Hz) leads the pole, and the motor comes second.  Refitted with the motor, the pole fits better
     (`ambid.diagnose._swap`): it takes the eddy current's place, within 2 %.  (Until stop 53 ambid's FEM left the
     sleeves out of the shear area, which made that writer's rotor 0.1 % stiffer in the motor with no effect hidden.)"""
-    path, config = foreign_log(tmp_path, "hs_eden_like", [{"name": "sensor_lowpass", "cutoff_hz": 6000.0},
-                                                          {"name": "element_stiffness", "tag": "motor", "scale": 1.001}],
-                               radial_points=160, seed=2)
+    hidden = [{"name": "sensor_lowpass", "cutoff_hz": 6000.0},
+              {"name": "element_stiffness", "tag": "motor", "scale": 1.001}]
+    path, config = foreign_log(tmp_path, "hs_eden_like", hidden, radial_points=160, seed=2)
     diagnosis, _ = diagnosed(path, config)
     assert [f.candidate.label for f in diagnosis.sequence] == ["sensor_lowpass", "element_stiffness[motor]"]
     replaced = dict(diagnosis.sequence[0].replaced)

@@ -368,7 +368,8 @@ class Rotor:
         -------
         dict of arrays (n_elements,)
             ``length_m``, ``bending_stiffness`` (E I + sleeve share), ``shear_parameter``
-            (phi ``= 12 E I / (kappa G A L^2)``, the sleeve's share in ``A``), ``mass_per_length``, ``inertia_per_length`` (transverse, rho I),
+            (phi ``= 12 E I / (kappa G A L^2)``, the sleeve's share in ``A``),
+            ``mass_per_length``, ``inertia_per_length`` (transverse, rho I),
             ``loss_factor``, ``youngs_modulus_pa``.
         """
         if "props" in self._cache:
