@@ -38,6 +38,7 @@ from .loop import zero_order_hold
 from .machine import ALL_AXES, AXIAL_AXIS, COIL_CURRENT_SAMPLING, RADIAL_AXES
 from .findings import Finding
 from .plant import Plant, zoh_discretize
+from .sampled_loop import coupling_matrix
 
 __all__ = ["CompareError", "measured_channels", "PointShares", "effective_shares", "input_coupling_slopes",
            "input_coupling", "at_input_coupling", "model_response", "model_channels",
@@ -169,10 +170,9 @@ def input_coupling_slopes(table):
 
 
 def input_coupling(effects):
-    """The input cross coupling of ``effects``: the sum of their input-side ``cross_coupling`` coefficients (two
-    couplings in series, ``(I + a S)(I + b S)``, are ``a + b`` to first order)."""
-    return float(sum(e.coefficient for e in effects if e is not None and e.name == "cross_coupling"
-                     and e.side == "input"))
+    """The input cross coupling of ``effects``: the x-y element of the input-side coupling matrix the loop applies
+    (`ambid.sampled_loop.coupling_matrix`; two couplings in series, ``(I + a S)(I + b S)``, give ``a + b``)."""
+    return float(coupling_matrix([e for e in effects if e is not None], "input", ("DX", "DY"))[0, 1])
 
 
 def at_input_coupling(measured, slopes, coefficient):
