@@ -1535,18 +1535,24 @@ def _swap(machine, measured, chosen, rounds, settings, cells, joint, alternative
     if len(chosen) < 2:
         return chosen, joint
     chosen, changed = list(chosen), False
+    variant = _variant(joint)
+    as_chosen = None  # the refit of the chosen effects as they are: the same for every round until one is replaced
     for i, contenders in enumerate(rounds):
         others = chosen[:i] + chosen[i + 1:]
         taken = {f.candidate.label for f in others}
-        options = [chosen[i]] + [f for f in contenders if f is not chosen[i] and f.candidate.label not in taken]
-        if len(options) < 2:
+        options = [f for f in contenders if f is not chosen[i] and f.candidate.label not in taken]
+        if not options:
             continue
-        refits = [(f, joint_refit(_variant(joint), measured, [*chosen[:i], f, *chosen[i + 1:]], settings, cells,
-                                  refit_variant=False)) for f in options]
+        if as_chosen is None:
+            as_chosen = joint_refit(variant, measured, chosen, settings, cells, refit_variant=False)
+        refits = [(chosen[i], as_chosen)] + [
+            (f, joint_refit(variant, measured, [*chosen[:i], f, *chosen[i + 1:]], settings, cells, refit_variant=False))
+            for f in options]
         best = _least_bic(refits)
         if best is not chosen[i]:
             best.replaced = tuple((f.candidate.label, j.chi2) for f, j in refits if f is chosen[i] or f is best)
             chosen[i], changed = best, True
+            as_chosen = next(j for f, j in refits if f is best)
     if changed:
         joint = joint_refit(machine, measured, chosen, settings, cells, initial=joint, alternatives=alternatives)
     return chosen, joint

@@ -22,6 +22,7 @@ The same library serves the virtual rig (truth = nominal machine + effects with
 true parameters) and the model (nominal machine + the effects the user added).
 """
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -149,6 +150,16 @@ def _check_value(value, spec, path):
         if bad:
             raise ConfigError(path, f"unknown axis {bad[0]!r}; axes are {list(ALL_AXES)}")
         return axes
+    if spec.kind == "float" and isinstance(value, (float, int)):
+        # a plain number (what a fit's trial gives, thousands of times per diagnosis): the checks below without numpy
+        number = float(value)
+        if not math.isfinite(number):
+            raise ConfigError(path, "must be finite")
+        if spec.lower is not None and number < spec.lower:
+            raise ConfigError(path, f"must be >= {spec.lower} {spec.unit}, got {value}")
+        if spec.upper is not None and number > spec.upper:
+            raise ConfigError(path, f"must be <= {spec.upper} {spec.unit}, got {value}")
+        return number
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
