@@ -141,6 +141,17 @@ couplings of 2040 read 0.02-0.46 % off (0.88-1.24 %) and none of the four sample
 parameters 48 / 49 / 42 / 46 (the new misses 5.04-5.39 % off, within their standard deviations), misfit at the floor
 50 of 50 in all four, negative controls 20 of 20 (hs_eden_like 2056 read "unexplained" at 579 Hz with the FEM change
 alone, "nothing" with the anti-resonance rule).
+Stop 54 (`_swap` refits the chosen effects as they are once, not once per round; bit-identical): every row of the four
+samples the same as stop 53's.  A second parameter figure, beside the first: "determined" read as two stated standard
+deviations within 5 % (`RESOLVED_SHARE`), else covered by 2 std: 48 / 50 / 47 / 47, every top-1 case (the first
+figure 48 / 49 / 42 / 46; its misses: three modal dampings 6.1-8.8 % off, hs_eden_like 2050's housing mode 5.4-5.5 %,
+a sensor shift 5.04 % and a weak cross coupling 16.6 %, each inside two of its standard deviations, which exceed 2.5 %).
+Logs without repeats, as the thesis' procedure and most other writers make them (``repeat_ratio=null``, in sample):
+top-1 42 of 50 (84 %; 5 of the 6 misses at the floor have the hidden effect as lead, hs_eden_like 2026's actuator
+coefficients read "unexplained"), one wrong name (hs_eden_like 2026's delay + housing mode as a sensor pole: the
+describing function's droop, which no repeat takes off, tips a delay toward the pole), parameters 41 / 42, within 2 std
+94 % (a gyroscopic speed 4.8 and a sensor shift 3.9 std), misfit at the floor 49 of 50, outside 8 / 8 and 8 / 8,
+negative controls 20 of 20 without a lead.
 About 8-12 minutes per suite with 2 workers.
 """
 
@@ -175,6 +186,9 @@ PAIRS = (("delay", "foundation_mode"), ("amplifier_lowpass", "element_stiffness"
 #: Negative controls beyond the suite's seeds (stop 38: two seeds per machine hid a false "unexplained" in the coil
 #: currents that 4 of 10 further no-effect logs showed): ten per machine with the default two seeds.
 EXTRA_NEGATIVE_SEEDS = 8
+#: The issue's 5 %; a parameter whose two stated standard deviations exceed it is scored, in a second figure beside
+#: the first, by whether they cover the truth (the first reads the joint refit's "determined", below 10 %).
+RESOLVED_SHARE = 0.05
 OUTSIDE = {
     "amplifier_second_order": {"natural_hz": 1500.0, "damping_ratio": 0.5},
     "sensor_gain": {"axis": "NX", "gain": 1.04},
@@ -270,6 +284,7 @@ def score(result):
         out["top1"] = len(chosen) == len(names) and hidden <= named
         out["lead_is_truth"] = not chosen and lead is not None and lead.candidate.effect in names
         errors, covered, out["z"] = [], True, []
+        resolved_ok = True  # the same with "determined" read as resolving 5 %: two stated standard deviations within it
         for name in names:
             rows = joint[(joint["origin"] == "new") & joint["parameter"].str.startswith(name + "[")
                          | joint["parameter"].str.startswith(name + ".")] if joint is not None else []
@@ -278,12 +293,16 @@ def score(result):
                 if out["top1"] and row.std > 0:
                     out["z"].append((abs(row.value - truth) / row.std,
                                      f"{machine} {seed} {row.parameter} {row.value:.6g} +- {row.std:.2g} (rig {truth:.6g})"))
+                error = abs(row.value / truth - 1) if truth != 0 else abs(row.value)
                 if row.determined:
-                    errors.append(abs(row.value / truth - 1) if truth != 0 else abs(row.value))
+                    errors.append(error)
                 else:
                     covered &= abs(row.value - truth) <= 2 * row.std
+                resolves = 2 * row.std <= RESOLVED_SHARE * abs(row.value)
+                resolved_ok &= error <= RESOLVED_SHARE if resolves else abs(row.value - truth) <= 2 * row.std
         out["worst_error"] = max(errors) if errors else np.nan
         out["parameters_ok"] = out["top1"] and all(e <= 0.05 for e in errors) and covered
+        out["parameters_resolved_ok"] = out["top1"] and resolved_ok
     elif kind == "outside":
         bound = any(f.at_bound for f in diagnosis.sequence) or (joint is not None and bool(joint["at_bound"].any()))
         out["no_bound"] = not bound
@@ -345,6 +364,8 @@ def suite(seeds, radial_points, workers):
           f"{sum(s['lead_is_truth'] for s in unnamed)} of {len(unnamed)}")
     print(f"parameters within 5 % where determined, else covered by 2 std: {sum(s['parameters_ok'] for s in library)} "
           f"of {len(library)}")
+    print(f"  the same where the stated standard deviation resolves {100 * RESOLVED_SHARE:g} % (2 std within it), else "
+          f"covered by 2 std: {sum(s['parameters_resolved_ok'] for s in library)} of {len(library)}")
     z = [(value, parameter) for s in library for value, parameter in s.get("z", [])]
     if z:
         print(f"  stated standard deviations against the errors, {len(z)} parameters of the top-1 cases: "
