@@ -151,28 +151,26 @@ def _check_value(value, spec, path):
             raise ConfigError(path, f"unknown axis {bad[0]!r}; axes are {list(ALL_AXES)}")
         return axes
     if spec.kind == "float" and isinstance(value, (float, int)):
-        # a plain number (what a fit's trial gives, thousands of times per diagnosis): the checks below without numpy
-        number = float(value)
-        if not math.isfinite(number):
-            raise ConfigError(path, "must be finite")
-        if spec.lower is not None and number < spec.lower:
-            raise ConfigError(path, f"must be >= {spec.lower} {spec.unit}, got {value}")
-        if spec.upper is not None and number > spec.upper:
-            raise ConfigError(path, f"must be <= {spec.upper} {spec.unit}, got {value}")
-        return number
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ConfigError(path, f"must be numeric, got {value!r}") from None
-    if spec.kind == "float" and array.ndim != 0:
-        raise ConfigError(path, "must be a single number")
-    if not np.all(np.isfinite(array)):
+        # a plain number (what a fit's trial gives, thousands of times per diagnosis): checked without a numpy array
+        checked = lowest = highest = float(value)
+        finite = math.isfinite(checked)
+    else:
+        try:
+            array = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(path, f"must be numeric, got {value!r}") from None
+        if spec.kind == "float" and array.ndim != 0:
+            raise ConfigError(path, "must be a single number")
+        checked = float(array) if array.ndim == 0 else tuple(array.tolist())
+        finite = bool(np.all(np.isfinite(array)))
+        lowest, highest = (float(np.min(array)), float(np.max(array))) if array.size else (math.inf, -math.inf)
+    if not finite:
         raise ConfigError(path, "must be finite")
-    if spec.lower is not None and np.any(array < spec.lower):
+    if spec.lower is not None and lowest < spec.lower:
         raise ConfigError(path, f"must be >= {spec.lower} {spec.unit}, got {value}")
-    if spec.upper is not None and np.any(array > spec.upper):
+    if spec.upper is not None and highest > spec.upper:
         raise ConfigError(path, f"must be <= {spec.upper} {spec.unit}, got {value}")
-    return float(array) if array.ndim == 0 else tuple(array.tolist())
+    return checked
 
 
 def effect_from_config(spec, path, machine=None):

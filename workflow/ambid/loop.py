@@ -18,6 +18,8 @@ sensitivity peak grades a stable loop only: an unstable loop is "unstable"
 and has no zone.
 """
 
+import functools
+
 import numpy as np
 
 from .errors import ModelError
@@ -55,22 +57,19 @@ def _functions(plant_response, controller_response):
     }
 
 
-_HOLDS = {}  # by (grid, sample time): a diagnosis asks for the same hold at every evaluation
-
-
 def zero_order_hold(frequency_hz, sample_time_s):
     """``(1 - exp(-s T)) / (s T)``: the DAC's hold seen by the continuous plant (1 at DC); read-only."""
     frequency_hz = np.asarray(frequency_hz, dtype=float)
-    key = (frequency_hz.shape, frequency_hz.tobytes(), float(sample_time_s))
-    if key not in _HOLDS:
-        if len(_HOLDS) >= 256:
-            _HOLDS.clear()
-        x = 2j * np.pi * frequency_hz * sample_time_s
-        safe = np.where(x == 0, 1.0, x)
-        hold = np.where(x == 0, 1.0, (1 - np.exp(-safe)) / safe)
-        hold.flags.writeable = False
-        _HOLDS[key] = hold
-    return _HOLDS[key]
+    return _hold(frequency_hz.tobytes(), frequency_hz.shape, float(sample_time_s))
+
+
+@functools.lru_cache(maxsize=256)  # by grid and sample time: a diagnosis asks for the same hold at every evaluation
+def _hold(grid_bytes, shape, sample_time_s):
+    x = 2j * np.pi * np.frombuffer(grid_bytes).reshape(shape) * sample_time_s
+    safe = np.where(x == 0, 1.0, x)
+    hold = np.where(x == 0, 1.0, (1 - np.exp(-safe)) / safe)
+    hold.flags.writeable = False
+    return hold
 
 
 def transfer_functions(plant, frequency_hz, hold=False):
