@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import scipy.stats
 import yaml
 
 from ambid.compare import model_response
-from ambid.amplitude import MEASURED_KAPPA, amplitude_dependence, pair_noise_factor
+from ambid.amplitude import MEASURED_KAPPA, amplitude_dependence, measured_variance_errors, pair_noise_factor
 from ambid.errors import ConfigError
 from ambid.excitation import StepPlan, run_stepped_sine, settings_from_config
 from ambid.compare import sampled_chain
@@ -202,9 +203,11 @@ class TestZeroAmplitude:
         f_sd = np.sqrt(2 * d2**2 * (d1 + d2 - 2) / (d1 * (d2 - 2) ** 2 * (d2 - 4)))
         assert f_sd == pytest.approx(np.std(per_point, ddof=1), rel=0.2), (d1, d2, f_sd)
         assert (table["variance_error"] >= 0).all()
-        # the rows left at their measured value keep a share of 1
+        # the rows left at their measured value share their pooled noise estimates (`measured_variance_errors`)
         kept = (table["re"] == frf_from_log(frame, DESCRIBING_FUNCTION)[0]["re"]).to_numpy()
-        assert kept.any() and (table.loc[kept, "effective_share"] == 1).all()
+        assert kept.any() and (table.loc[kept, "variance_error"] > 0).all()
+        np.testing.assert_allclose(table.loc[kept, "effective_share"], 1 / (1 + table.loc[kept, "variance_error"]),
+                                   rtol=1e-12)
 
     def test_point_by_point_where_the_noise_dominates_the_measured_value_stays(self, monkeypatch):
         # the rule for a channel whose pairs do not measure its amplitude dependence: 0.3 % noise against a 0.1 %
@@ -458,7 +461,8 @@ class TestPooledNoise:
         for level in (0, 1):
             rows = frame[(frame["channel"] == "V2_DX") & (frame["level"] == level)].sort_values("frequency_hz")
             variance = rows["noise_std"].to_numpy() ** 2
-            expected = np.sqrt([variance[max(k - 1, 0) : k + 2].mean() for k in range(variance.size)])
+            start = np.clip(np.arange(variance.size) - 1, 0, variance.size - 3)  # the ends' windows shifted inwards
+            expected = np.sqrt([variance[k : k + 3].mean() for k in start])
             np.testing.assert_allclose(pooled.loc[rows.index, "noise_std"], expected, rtol=1e-12)
         assert pooled_noise(frame, half_width=0) is frame
 
@@ -475,6 +479,38 @@ class TestPooledNoise:
                                       "noise_std": np.sqrt(variance[:, i, j])})
                 np.testing.assert_allclose(pooled[:, i, j], pooled_noise(frame, 2)["noise_std"] ** 2, rtol=1e-12)
         np.testing.assert_array_equal(pool_variance(variance, 0), variance)
+
+    def test_the_ends_pool_as_many_steps_as_the_middle(self):
+        """A grid's first and last steps pool five 4-degree-of-freedom estimates, as the middle does: their errors over
+        the stated noise are F(2, 20), not the F(2, 12) of the three a centred window holds there (stop 55: demo20's
+        last step, 1000 Hz, pooled with two, stated a third of its neighbours' noise)."""
+        rng = np.random.default_rng(7)
+        variance = rng.chisquare(4, (12, 40000)) / 4  # each step's estimate of a unit variance
+        error = rng.exponential(1.0, (12, 40000))  # |e|^2 of complex unit noise
+        z2 = error / pool_variance(variance, half_width=2)
+        for row in (0, 1, 5, 10, 11):
+            assert np.quantile(z2[row], 0.995) == pytest.approx(scipy.stats.f.ppf(0.995, 2, 20), rel=0.08), row
+        assert scipy.stats.f.ppf(0.995, 2, 12) > 1.15 * scipy.stats.f.ppf(0.995, 2, 20)  # what the test tells apart
+
+    def test_every_measured_row_states_how_uncertain_its_variance_is(self):
+        """`measured_variance_errors`: a point's variance, the mean of its window's 4-degree-of-freedom estimates, has
+        a relative error that the points sharing them add up to 2 / 4 (more near the ends, whose shifted windows
+        overlap more: 27 / 50 two steps in); where a systematic floor as large as the noise is half its variance, a
+        quarter of that."""
+        table = frf_from_log(synthetic_log(kappa=0.0, noise=3e-2, points=30, repeat_ratio=None))[0]
+        assert (table["variance_error"] > 0).all()  # the FRF stage states it on every row
+        table = table.assign(systematic_std=0.0)
+        own = measured_variance_errors(table, settings=FloorSettings(noise_half_width=0))
+        np.testing.assert_allclose(own["variance_error"], 0.5, rtol=1e-12)
+        np.testing.assert_allclose(own["effective_share"], 1 / 1.5, rtol=1e-12)
+        pooled = measured_variance_errors(table)["variance_error"].to_numpy().reshape(-1, 30)  # one channel a row
+        np.testing.assert_allclose(pooled[:, 7:-7], 0.5, rtol=1e-12)
+        np.testing.assert_allclose(pooled[:, [3, -4]], 0.54, rtol=1e-12)
+        halved = measured_variance_errors(table.assign(systematic_std=table["std"]), settings=FloorSettings(noise_half_width=0))
+        np.testing.assert_allclose(halved["variance_error"], 0.125, rtol=1e-12)
+        # the noise scaled to the scatter of the neighbouring steps: the scale's own error adds
+        scaled = measured_variance_errors(table, noise_scale=np.full(len(table), 0.5))
+        assert (scaled["variance_error"] > 0.5).all()
 
     def test_a_step_that_went_wrong_keeps_its_noise_to_itself(self):
         """A step whose loop diverged (its noise 1e7 times its neighbours') keeps its own and is left out of theirs."""

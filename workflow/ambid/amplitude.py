@@ -65,13 +65,13 @@ the interpolation's error already counts, and the stated noise stays.  This is b
 import numpy as np
 import scipy.special
 
-from .floor import (RESOLVED, FloorSettings, excitation_amplitude_squared, family_of, level_pairs, local_fits,
+from .floor import (RESOLVED, FloorSettings, excitation_amplitude_squared, family_of, level_pairs, local_fits, pool_windows,
                     resonance_ratio)
 from .logs import run_matrix
 from .machine import RADIAL_AXES
 
 __all__ = ["MEASURED_KAPPA", "AMPLITUDE_ERROR_ALIKE", "amplitude_dependence", "pair_noise_factor", "zero_amplitude",
-           "account_zero_amplitude", "effective_share"]
+           "account_zero_amplitude", "effective_share", "measured_variance_errors"]
 
 #: Library effects the describing function's amplitude-dependent error reads like (stop 30: the leads of centred rigs
 #: without zero amplitude): what a diagnosis of a run without repeated steps may name for it.
@@ -401,8 +401,8 @@ def zero_amplitude(table, low_table, arrays, low_arrays, noise_scale=None, setti
         (``sum_j c_ij``: the variance of its stated variance's relative error with
         the covariances of the other points' that share it, what a cell's chance
         limit takes its noise estimate's degrees of freedom from); the others keep
-        theirs (1 and 0 from `ambid.frf.frf_table`: the sharing of their pooled
-        noise estimates is not counted).  A MIMO cross element that took the
+        the table's (`measured_variance_errors`, which `ambid.frf.frf_from_log`
+        states first).  A MIMO cross element that took the
         diagonals' prediction (`_structured_zero`) states in
         ``input_coupling_slope_re`` / ``_im`` how its value moves per unit input
         cross coupling (`_mimo_inversion_errors`), what a model with one reads it
@@ -571,9 +571,21 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
     variance = level0.sum(axis=1) + level1.sum(axis=1) + systematic**2
     variance = np.where(variance > 0, variance, 1.0)
     level0, level1 = level0 / variance[:, None], level1 / variance[:, None]
+    estimate = _estimate_covariance(level0, level1, channel["frequency"], noise_scale, settings)
+    return shared.reshape(n, 2 * pairs), np.hypot(np.sqrt(own), systematic), estimate
+
+
+def _estimate_covariance(level0, level1, frequency, noise_scale, settings):
+    """``(n, n)``: the covariance of ``n`` points' stated variances' relative errors (`_shared_errors`).
+
+    ``level0`` ``(n, n)`` and ``level1`` ``(n, p)``: each point's share of its stated variance in each step's level-0
+    noise estimate and each pair's level-1 one; ``noise_scale`` ``(n,)``: `ambid.floor.systematic_floor`'s factor.
+    """
+    n = level0.shape[0]
+    points = np.arange(n)
     half_width = settings.noise_half_width
     pooled = _pooled_covariance(n, half_width)
-    estimate = level0 @ pooled @ level0.T + level1 @ _pooled_covariance(pairs, half_width) @ level1.T
+    estimate = level0 @ pooled @ level0.T + level1 @ _pooled_covariance(level1.shape[1], half_width) @ level1.T
     # the scale: a running mean of the ratios |r_k|^2 / s_k^2 of the steps whose local fit is centred on them; two
     # ratios covary by |rho_kl|^2 of their residuals (overlapping fits) and by their noise estimates
     centred = np.zeros(n)
@@ -581,7 +593,7 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
     mean = (np.abs(np.subtract.outer(points, points)) <= settings.scatter_half_width) * centred[None, :]
     mean /= np.maximum(mean.sum(axis=1, keepdims=True), 1.0)
     fits = np.zeros((n, n))
-    for k, (window, j, hat) in enumerate(local_fits(channel["frequency"], settings.smooth_half_width)):
+    for k, (window, j, hat) in enumerate(local_fits(frequency, settings.smooth_half_width)):
         fits[k, window] = -hat
         fits[k, k] += 1.0
     residual = fits @ fits.T
@@ -592,8 +604,7 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
     # noise share counts as often as its mean, normal about the scale squared, falls below 1
     below = scipy.special.ndtr((1 - noise_scale**2) / np.sqrt(np.clip(scale_covariance.diagonal(), 1e-300, None)))
     scaled = np.sqrt(below) * (noise_scale < 1) * (level0.sum(axis=1) + level1.sum(axis=1))
-    estimate += np.outer(scaled, scaled) * scale_covariance
-    return shared.reshape(n, 2 * pairs), np.hypot(np.sqrt(own), systematic), estimate
+    return estimate + np.outer(scaled, scaled) * scale_covariance
 
 
 def _own_gain(channel):
@@ -609,13 +620,13 @@ def _own_gain(channel):
 def _pooled_covariance(steps, half_width):
     """Covariance of the relative errors of `ambid.floor.pooled_noise`'s variances along ``steps`` steps of one level.
 
-    Each pooled variance is the mean of ``W = 2 half_width + 1`` estimates of
-    `NOISE_DOF` degrees of freedom (relative variance ``2 / NOISE_DOF``); two
-    steps ``d`` apart share ``W - d`` of them.  The ends, which pool fewer, are
-    taken as the others.
+    Each pooled variance is the mean of the ``W`` estimates of its window
+    (`ambid.floor.pool_windows`), each of `NOISE_DOF` degrees of freedom (relative
+    variance ``2 / NOISE_DOF``); two windows whose starts are ``d`` apart share
+    ``W - d`` of them.
     """
-    window = 2 * half_width + 1
-    distance = np.abs(np.subtract.outer(np.arange(steps), np.arange(steps)))
+    starts, window = pool_windows(steps, half_width)
+    distance = np.abs(np.subtract.outer(starts, starts))
     return (2.0 / NOISE_DOF) * np.clip(window - distance, 0, None) / window**2
 
 
@@ -654,6 +665,52 @@ def effective_share(shared, alone, estimate=None):
     if estimate is not None:
         correlation += estimate
     return 1.0 / correlation.sum(axis=1)
+
+
+def measured_variance_errors(table, noise_scale=None, settings=None):
+    """Every row's ``effective_share`` and ``variance_error`` as measured: its stated variance is an estimate.
+
+    A row's noise is the mean of its window's noise estimates
+    (`ambid.floor.pooled_noise`, each `NOISE_DOF` degrees of freedom), scaled down
+    to the scatter between neighbouring steps where that is smaller
+    (`ambid.floor.systematic_floor`), and the points of a channel share both.  A
+    cell's chance limit reads its noise estimates' degrees of freedom from these
+    (`ambid.diagnose.chance_limit`: Fisher's F, not the Gamma of known variances).
+    `zero_amplitude` states them for the rows it extrapolates and leaves the
+    others with these.  Until stop 55 the rows that kept their measured value
+    counted as known variances: on a demo20 negative control (seed 2114) the
+    coil currents' 57-point band read "unexplained" at 1.55 against the limit
+    1.5, where its pooled estimates' degrees of freedom put it at 1.6.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        `ambid.frf.frf_table` with ``std`` and ``systematic_std`` (`ambid.floor.systematic_floor`).
+    noise_scale : array, optional
+        Per row, the factor `ambid.floor.systematic_floor` scaled its noise by (1 where none).
+    settings : ambid.floor.FloorSettings, optional
+        How the noise was pooled and scaled.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``variance_error`` ``e = sum_j c_ij`` (`_estimate_covariance`) and ``effective_share``
+        ``1 / (1 + e)`` (`effective_share`) on every row.
+    """
+    settings = settings or FloorSettings()
+    scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
+    noise = table["std"].to_numpy(dtype=float)
+    systematic = np.nan_to_num(table["systematic_std"].to_numpy(dtype=float))
+    frequency = table["frequency_hz"].to_numpy(dtype=float)
+    shares, errors = np.ones(len(table)), np.zeros(len(table))
+    for rows in table.groupby(["estimator", "output", "input"], sort=False).indices.values():
+        rows = rows[np.argsort(frequency[rows], kind="stable")]
+        variance = noise[rows] ** 2 + systematic[rows] ** 2
+        level0 = np.diag(noise[rows] ** 2 / np.where(variance > 0, variance, 1.0))
+        estimate = _estimate_covariance(level0, np.zeros((rows.size, 0)), frequency[rows], scale[rows], settings)
+        errors[rows] = estimate.sum(axis=1)
+        shares[rows] = effective_share(np.zeros((rows.size, 0)), np.ones(rows.size), estimate)
+    return table.assign(effective_share=shares, variance_error=errors)
 
 
 def account_zero_amplitude(floors, table, extrapolated):

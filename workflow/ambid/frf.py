@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from .amplitude import account_zero_amplitude, zero_amplitude
+from .amplitude import account_zero_amplitude, measured_variance_errors, zero_amplitude
 from .errors import LogError
 from .floor import FloorSettings, pooled_noise, systematic_floor
 from .findings import Finding
@@ -172,8 +172,9 @@ def frf_table(siso, mimo=None, axes=RADIAL_AXES, current=None):
     ``re``, ``im``, ``std`` (noise) [m/A; A/A for ``current``], ``condition`` (of U, MIMO only) and
     ``systematic_std`` (NaN here; `ambid.floor.systematic_floor` estimates it), ``effective_share`` (1 here: the
     share of an independent point a row's error carries, below 1 where `ambid.amplitude.zero_amplitude` makes rows
-    share their repeats' noise) and ``variance_error`` (0 here: how uncertain a row's stated variance is, where
-    `ambid.amplitude.zero_amplitude` states it from shared noise estimates), ``input_coupling_slope_re`` / ``_im``
+    share their repeats' noise) and ``variance_error`` (0 here: how uncertain a row's stated variance is;
+    `frf_from_log` states both from the pooled noise estimates, `ambid.amplitude.measured_variance_errors`, and
+    `ambid.amplitude.zero_amplitude` from the repeats' shared ones), ``input_coupling_slope_re`` / ``_im``
     (0 here: how a row's value at zero amplitude moves with an input cross coupling the FRF stage cannot know)."""
     parts = []
     for (output, input_axis), (frequency, a, std) in (current or {}).items():
@@ -235,11 +236,12 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
             low_mimo = None
         low = frf_table(siso_etfe(low_arrays), low_mimo, current=current_etfe(low_arrays))
     table, floors = systematic_floor(measured, arrays, low, low_arrays, settings)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.nan_to_num(table["std"].to_numpy() / measured["std"].to_numpy(), nan=1.0)
+    table = measured_variance_errors(table, scale, settings)
     extrapolated = np.zeros(len(table), dtype=bool)
     if settings.zero_amplitude and low is not None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = table["std"].to_numpy() / measured["std"].to_numpy()
-        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0), settings)
+        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, scale, settings)
     floors = account_zero_amplitude(floors, table, extrapolated).assign(
         noise_pooled_steps=2 * settings.noise_half_width + 1)
     return table, floors, mimo
