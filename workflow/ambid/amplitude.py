@@ -667,29 +667,35 @@ def effective_share(shared, alone, estimate=None):
     return 1.0 / correlation.sum(axis=1)
 
 
-def measured_variance_errors(table, noise_scale=None, settings=None):
+def measured_variance_errors(table, settings=None):
     """Every row's ``effective_share`` and ``variance_error`` as measured: its stated variance is an estimate.
 
     A row's noise is the mean of its window's noise estimates
-    (`ambid.floor.pooled_noise`, each `NOISE_DOF` degrees of freedom), scaled down
-    to the scatter between neighbouring steps where that is smaller
-    (`ambid.floor.systematic_floor`), and the points of a channel share both.  A
-    cell's chance limit reads its noise estimates' degrees of freedom from these
-    (`ambid.diagnose.chance_limit`: Fisher's F, not the Gamma of known variances).
-    `zero_amplitude` states them for the rows it extrapolates and leaves the
-    others with these.  Until stop 55 the rows that kept their measured value
-    counted as known variances: on a demo20 negative control (seed 2114) the
-    coil currents' 57-point band read "unexplained" at 1.55 against the limit
-    1.5, where its pooled estimates' degrees of freedom put it at 1.6.
+    (`ambid.floor.pooled_noise`, each `NOISE_DOF` degrees of freedom), which the
+    points of a channel share.  A cell's chance limit reads its noise estimates'
+    degrees of freedom from these (`ambid.diagnose.chance_limit`: Fisher's F,
+    not the Gamma of known variances); `zero_amplitude` states them for the
+    rows it extrapolates and leaves the others with these.
+
+    The scale to the scatter between neighbouring steps
+    (`ambid.floor.systematic_floor`) is not counted here, as `zero_amplitude`
+    counts it: it is measured from the same steps' noise that a row's misfit
+    holds, so it normalizes that misfit rather than adding an error of its own.
+    Over 40 no-effect logs of each default machine (`bench_extrapolation.py
+    --cells`, stop 55), the coil-current cells, whose noise is scaled to a
+    twentieth, spread as 41-154 independent points (of 26-169); counted with the
+    scale's error they stated 14-44, as known variances 26-169; with the pooling
+    alone they state at most ``n / 1.5`` of their ``n`` (17-113).  Until stop 55 rows as measured counted as known variances,
+    and a demo20 negative control (seed 2114) read "unexplained" for its 57-point
+    coil-current band at 1.55 against 1.5 (its limit with the pooled estimates' 228
+    degrees of freedom: 1.61).
 
     Parameters
     ----------
     table : pandas.DataFrame
         `ambid.frf.frf_table` with ``std`` and ``systematic_std`` (`ambid.floor.systematic_floor`).
-    noise_scale : array, optional
-        Per row, the factor `ambid.floor.systematic_floor` scaled its noise by (1 where none).
     settings : ambid.floor.FloorSettings, optional
-        How the noise was pooled and scaled.
+        How the noise was pooled.
 
     Returns
     -------
@@ -698,7 +704,6 @@ def measured_variance_errors(table, noise_scale=None, settings=None):
         ``1 / (1 + e)`` (`effective_share`) on every row.
     """
     settings = settings or FloorSettings()
-    scale = np.ones(len(table)) if noise_scale is None else np.asarray(noise_scale, dtype=float)
     noise = table["std"].to_numpy(dtype=float)
     systematic = np.nan_to_num(table["systematic_std"].to_numpy(dtype=float))
     frequency = table["frequency_hz"].to_numpy(dtype=float)
@@ -707,7 +712,7 @@ def measured_variance_errors(table, noise_scale=None, settings=None):
         rows = rows[np.argsort(frequency[rows], kind="stable")]
         variance = noise[rows] ** 2 + systematic[rows] ** 2
         level0 = np.diag(noise[rows] ** 2 / np.where(variance > 0, variance, 1.0))
-        estimate = _estimate_covariance(level0, np.zeros((rows.size, 0)), frequency[rows], scale[rows], settings)
+        estimate = _estimate_covariance(level0, np.zeros((rows.size, 0)), frequency[rows], np.ones(rows.size), settings)
         errors[rows] = estimate.sum(axis=1)
         shares[rows] = effective_share(np.zeros((rows.size, 0)), np.ones(rows.size), estimate)
     return table.assign(effective_share=shares, variance_error=errors)

@@ -238,7 +238,7 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
     table, floors = systematic_floor(measured, arrays, low, low_arrays, settings)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.nan_to_num(table["std"].to_numpy() / measured["std"].to_numpy(), nan=1.0)
-    table = measured_variance_errors(table, scale, settings)
+    table = measured_variance_errors(table, settings)
     extrapolated = np.zeros(len(table), dtype=bool)
     if settings.zero_amplitude and low is not None:
         table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, scale, settings)
