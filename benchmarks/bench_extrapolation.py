@@ -59,6 +59,14 @@ most), and it reads above it on 1 of 40 logs of each machine: demo20 2071 at 2.6
 2.68 against 2.55.
 The coil-current cells state their point counts (26.0 and 25.3 for the 26 I_Z points; their spread shows 23 and 25).
 
+Stop 55, the same logs with the rows left as measured stating their pooled noise estimates' error too
+(`ambid.amplitude.measured_variance_errors`), first with the scale to the neighbours' scatter counted as well: the
+coil-current cells spread as 41-154 independent points (demo20: 42, 112 and 110 of the bands' 57, 129 and 160, the
+rows 41-70 of 80, I_Z 23; hs_eden_like: 42, 154 and 121 of 69, 169 and 108, the rows 57-101, I_Z 25) and stated
+14-44, their limits 1.65-2.48; every cell within its limit on all 80 logs but hs_eden_like's NY row without the
+extrapolation (2 of 40).  The scale is measured from the misfit it then divides, so it is no error of its own there:
+without it the rows state the pooling alone, at most two thirds of their points.
+
 Usage: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_extrapolation.py`` (parts 1-3, about 3 minutes);
 ``... bench_extrapolation.py --cells [first seed] [logs] [workers]`` (part 4 alone, default 2040, 40 and 2: about 15
 minutes on 2 cores).

@@ -678,17 +678,18 @@ def measured_variance_errors(table, settings=None):
     rows it extrapolates and leaves the others with these.
 
     The scale to the scatter between neighbouring steps
-    (`ambid.floor.systematic_floor`) is not counted here, as `zero_amplitude`
-    counts it: it is measured from the same steps' noise that a row's misfit
-    holds, so it normalizes that misfit rather than adding an error of its own.
-    Over 40 no-effect logs of each default machine (`bench_extrapolation.py
-    --cells`, stop 55), the coil-current cells, whose noise is scaled to a
-    twentieth, spread as 41-154 independent points (of 26-169); counted with the
-    scale's error they stated 14-44, as known variances 26-169; with the pooling
-    alone they state at most ``n / 1.5`` of their ``n`` (17-113).  Until stop 55 rows as measured counted as known variances,
-    and a demo20 negative control (seed 2114) read "unexplained" for its 57-point
-    coil-current band at 1.55 against 1.5 (its limit with the pooled estimates' 228
-    degrees of freedom: 1.61).
+    (`ambid.floor.systematic_floor`) is not counted here (`zero_amplitude`
+    counts it for the rows it extrapolates): it is measured from the same
+    steps' noise that a measured row's misfit holds, so it normalizes that
+    misfit rather than adding an error of its own.  Over 40 no-effect logs of
+    each default machine (`bench_extrapolation.py --cells`, stop 55), the
+    coil-current cells, whose noise is scaled to a twentieth, spread as 41-154
+    independent points (of 26-169); counted with the scale's error they stated
+    14-44, as known variances 26-169; with the pooling alone they state at most
+    ``n / 1.5`` of their ``n`` (17-113).  Until stop 55 rows as measured counted
+    as known variances, and a demo20 negative control (seed 2114) read
+    "unexplained" for its 57-point coil-current band at 1.55 against 1.5 (its
+    limit with the pooled estimates' 219 degrees of freedom: 1.61).
 
     Parameters
     ----------
