@@ -571,21 +571,9 @@ def _shared_errors(channel, chosen, zero, noise, systematic, noise_scale, settin
     variance = level0.sum(axis=1) + level1.sum(axis=1) + systematic**2
     variance = np.where(variance > 0, variance, 1.0)
     level0, level1 = level0 / variance[:, None], level1 / variance[:, None]
-    estimate = _estimate_covariance(level0, level1, channel["frequency"], noise_scale, settings)
-    return shared.reshape(n, 2 * pairs), np.hypot(np.sqrt(own), systematic), estimate
-
-
-def _estimate_covariance(level0, level1, frequency, noise_scale, settings):
-    """``(n, n)``: the covariance of ``n`` points' stated variances' relative errors (`_shared_errors`).
-
-    ``level0`` ``(n, n)`` and ``level1`` ``(n, p)``: each point's share of its stated variance in each step's level-0
-    noise estimate and each pair's level-1 one; ``noise_scale`` ``(n,)``: `ambid.floor.systematic_floor`'s factor.
-    """
-    n = level0.shape[0]
-    points = np.arange(n)
     half_width = settings.noise_half_width
     pooled = _pooled_covariance(n, half_width)
-    estimate = level0 @ pooled @ level0.T + level1 @ _pooled_covariance(level1.shape[1], half_width) @ level1.T
+    estimate = level0 @ pooled @ level0.T + level1 @ _pooled_covariance(pairs, half_width) @ level1.T
     # the scale: a running mean of the ratios |r_k|^2 / s_k^2 of the steps whose local fit is centred on them; two
     # ratios covary by |rho_kl|^2 of their residuals (overlapping fits) and by their noise estimates
     centred = np.zeros(n)
@@ -593,7 +581,7 @@ def _estimate_covariance(level0, level1, frequency, noise_scale, settings):
     mean = (np.abs(np.subtract.outer(points, points)) <= settings.scatter_half_width) * centred[None, :]
     mean /= np.maximum(mean.sum(axis=1, keepdims=True), 1.0)
     fits = np.zeros((n, n))
-    for k, (window, j, hat) in enumerate(local_fits(frequency, settings.smooth_half_width)):
+    for k, (window, j, hat) in enumerate(local_fits(channel["frequency"], settings.smooth_half_width)):
         fits[k, window] = -hat
         fits[k, k] += 1.0
     residual = fits @ fits.T
@@ -604,7 +592,8 @@ def _estimate_covariance(level0, level1, frequency, noise_scale, settings):
     # noise share counts as often as its mean, normal about the scale squared, falls below 1
     below = scipy.special.ndtr((1 - noise_scale**2) / np.sqrt(np.clip(scale_covariance.diagonal(), 1e-300, None)))
     scaled = np.sqrt(below) * (noise_scale < 1) * (level0.sum(axis=1) + level1.sum(axis=1))
-    return estimate + np.outer(scaled, scaled) * scale_covariance
+    estimate += np.outer(scaled, scaled) * scale_covariance
+    return shared.reshape(n, 2 * pairs), np.hypot(np.sqrt(own), systematic), estimate
 
 
 def _own_gain(channel):
@@ -701,8 +690,8 @@ def measured_variance_errors(table, settings=None):
     Returns
     -------
     pandas.DataFrame
-        A copy with ``variance_error`` ``e = sum_j c_ij`` (`_estimate_covariance`) and ``effective_share``
-        ``1 / (1 + e)`` (`effective_share`) on every row.
+        A copy with ``variance_error`` ``e = sum_j c_ij`` (`_pooled_covariance`, each row weighted by the noise's
+        share of its variance) and ``effective_share`` ``1 / (1 + e)`` (`effective_share`) on every row.
     """
     settings = settings or FloorSettings()
     noise = table["std"].to_numpy(dtype=float)
@@ -712,8 +701,8 @@ def measured_variance_errors(table, settings=None):
     for rows in table.groupby(["estimator", "output", "input"], sort=False).indices.values():
         rows = rows[np.argsort(frequency[rows], kind="stable")]
         variance = noise[rows] ** 2 + systematic[rows] ** 2
-        level0 = np.diag(noise[rows] ** 2 / np.where(variance > 0, variance, 1.0))
-        estimate = _estimate_covariance(level0, np.zeros((rows.size, 0)), frequency[rows], np.ones(rows.size), settings)
+        noise_share = noise[rows] ** 2 / np.where(variance > 0, variance, 1.0)
+        estimate = noise_share[:, None] * _pooled_covariance(rows.size, settings.noise_half_width) * noise_share[None, :]
         errors[rows] = estimate.sum(axis=1)
         shares[rows] = effective_share(np.zeros((rows.size, 0)), np.ones(rows.size), estimate)
     return table.assign(effective_share=shares, variance_error=errors)
