@@ -153,6 +153,12 @@ indistinguishable from a delay, an eddy-current lag and an amplifier, BIC 3.4 ap
 is not alone), parameters 41 / 42, within 2 std
 94 % (a gyroscopic speed 4.8 and a sensor shift 3.9 std), misfit at the floor 49 of 50, outside 8 / 8 and 8 / 8,
 negative controls 20 of 20 without a lead.
+Stop 55 (the noise pooled over five steps at a grid's ends as in its middle; rows as measured state their pooled
+estimates' error): top-1 48 / 50 / 46 / 47, parameters 48 / 49 / 42 / 46 and 48 / 50 / 46 / 47, within 2 std
+93 / 98 / 99 / 99 % (beyond 3 std hs_eden_like 2050's drive-end stack, 3.5, and 2061's amplifier corner, 3.1, 0.02 %
+off), misfit at the floor 50 of 50, outside 8 / 8 and 8 / 8, negative controls 20 of 20 in all four, none with a lead
+(demo20 2027's housing-mode lead gone; its gyroscopic miss now has the hidden effect as lead).  The new miss:
+hs_eden_like 2051's weak cross coupling (signature 3.6), 117 -> 87 channel by channel, now its lead at the floor.
 About 8-12 minutes per suite with 2 workers.
 """
 
