@@ -12,7 +12,7 @@ from ambid.channel_fit import max_fit_modes
 from ambid.errors import ConfigError
 from ambid.excitation import settings_from_config
 from ambid.io import file_digest, read_yaml
-from ambid.kernels import pin_cpu_kernels
+from ambid.kernels import pin_cpu_kernels, pin_job_threads
 from ambid.multisine import multisine_settings_from_config
 from ambid.machine import machine_from_config
 from ambid.effects import effect_from_config
@@ -20,8 +20,10 @@ from ambid.rig import rig_from_config
 from ambid.update import UpdateSettings
 from ambid.variants import NOMINAL, variant_chain
 
-# every job's numpy and OpenBLAS on the AVX2 kernels: the same bytes on any x86-64 CPU (ambid.kernels)
+# every job's numpy and OpenBLAS on the AVX2 kernels: the same bytes on any x86-64 CPU; one BLAS thread per job, as
+# its rule declares (ambid.kernels)
 pin_cpu_kernels()
+pin_job_threads()
 
 
 def check_schema(instance, schema, source):

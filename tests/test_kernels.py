@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from ambid import kernels
-from ambid.kernels import PINNED_KERNELS, pin_cpu_kernels
+from ambid.kernels import JOB_THREADS, PINNED_KERNELS, pin_cpu_kernels, pin_job_threads
 
 
 def test_the_kernels_are_pinned_and_the_users_choice_kept(monkeypatch):
@@ -16,6 +16,13 @@ def test_the_kernels_are_pinned_and_the_users_choice_kept(monkeypatch):
     environ = {"OPENBLAS_CORETYPE": "SkylakeX"}
     assert pin_cpu_kernels(environ) == {"NPY_DISABLE_CPU_FEATURES": PINNED_KERNELS["NPY_DISABLE_CPU_FEATURES"]}
     assert environ["OPENBLAS_CORETYPE"] == "SkylakeX"
+
+
+def test_each_job_gets_one_blas_thread_on_every_platform_and_the_users_choice_is_kept(monkeypatch):
+    monkeypatch.setattr(kernels.platform, "machine", lambda: "aarch64")
+    environ = {"OMP_NUM_THREADS": "4"}
+    assert pin_job_threads(environ) == {"OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    assert environ["OMP_NUM_THREADS"] == "4" and set(environ) == set(JOB_THREADS)
 
 
 @pytest.mark.parametrize("machine, avx2", [("aarch64", True), ("x86_64", False)])
