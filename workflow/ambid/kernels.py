@@ -22,10 +22,9 @@ __all__ = ["PINNED_KERNELS", "JOB_THREADS", "pin_cpu_kernels", "pin_job_threads"
 PINNED_KERNELS = {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Haswell"}
 
 
-#: One BLAS and OpenMP thread per job, as every rule declares (``threads: 1``).  Left to themselves OpenBLAS and
-#: OpenMP start a thread per core in each of the jobs Snakemake runs side by side, and the multisine run's parametric
-#: fit gave other bytes in 1 of 6 forced reruns with ``--cores 2`` (stop 55; the default run with one thread per job
-#: is byte for byte the run without it).
+#: One BLAS and OpenMP thread per job, as every rule declares (``threads: 1``): left to themselves OpenBLAS and OpenMP
+#: start a thread per core in each of the jobs Snakemake runs side by side.  (The default run with one thread per job
+#: is byte for byte the run without it, stop 55.)
 JOB_THREADS = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
