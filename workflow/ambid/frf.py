@@ -236,12 +236,12 @@ def frf_from_log(frame, floor_settings=None, source="identification log", estima
             low_mimo = None
         low = frf_table(siso_etfe(low_arrays), low_mimo, current=current_etfe(low_arrays))
     table, floors = systematic_floor(measured, arrays, low, low_arrays, settings)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.nan_to_num(table["std"].to_numpy() / measured["std"].to_numpy(), nan=1.0)
     table = measured_variance_errors(table, settings)
     extrapolated = np.zeros(len(table), dtype=bool)
     if settings.zero_amplitude and low is not None:
-        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, scale, settings)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = table["std"].to_numpy() / measured["std"].to_numpy()
+        table, extrapolated = zero_amplitude(table, low, arrays, low_arrays, np.nan_to_num(scale, nan=1.0), settings)
     floors = account_zero_amplitude(floors, table, extrapolated).assign(
         noise_pooled_steps=2 * settings.noise_half_width + 1)
     return table, floors, mimo
