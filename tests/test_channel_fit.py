@@ -310,3 +310,49 @@ def test_a_pole_zero_dipole_is_flagged_not_a_mode():
     flag, findings = fit_verdict(fit, F, g, None, "DX/DX")
     assert flag == "" and [f.code for f in findings] == ["dipole"]
     assert [r["flag"] for r in feature_rows(fit, "DX", "DX", "output_error", band_hz=(1.0, 750.0))] == ["dipole", "dipole", ""]
+
+
+def test_the_refinement_does_not_depend_on_what_the_heap_held():
+    """scipy 1.15-1.17's C MINPACK reads one value past its Jacobian (``qrfac`` renormalizing the last column after
+    cancellation): a fit could give one of two results from one process to the next.  The refinement's solver
+    (`_levenberg_marquardt`) must give the same bytes whatever the freed memory next to that array holds."""
+    import scipy.optimize
+
+    from ambid.channel_fit import _levenberg_marquardt
+
+    rng = np.random.default_rng(0)
+    rows = 200
+    column = rng.standard_normal(rows)
+    # the last column cancels against the first to 1e-12: MINPACK recomputes its norm, reading one value too many
+    jacobian = np.column_stack([column * 1.001 + 1e-9 * rng.standard_normal(rows), 0.5 * rng.standard_normal(rows), column])
+    data = rng.standard_normal(rows)
+
+    def residuals(theta):
+        return jacobian @ theta + 0.1 * theta[0] ** 2 * column - data
+
+    def derivatives(theta):
+        return jacobian + np.outer(0.2 * theta[0] * column, [1.0, 0.0, 0.0])
+
+    def scipy_lm():
+        return scipy.optimize.least_squares(residuals, np.zeros(3), jac=derivatives, method="lm", max_nfev=200,
+                                            x_scale="jac", ftol=1e-7, xtol=1e-7)
+
+    def ours():
+        return _levenberg_marquardt(residuals, derivatives, np.zeros(3), 200)
+
+    def solutions(solve):
+        found = set()
+        for poison in (0.0, 1.0, 1e3):
+            for extra in range(3):
+                # memory freed just before, of the sizes the solver asks for: one of its arrays lands where they were
+                freed = [np.full(3 * rows + extra + k, poison) for k in range(-4, 5) for _ in range(20)]
+                del freed
+                found.add(solve().x.tobytes())
+        return found
+
+    if len(solutions(scipy_lm)) == 1:
+        pytest.skip("this scipy's MINPACK does not read past its Jacobian here: nothing to guard against")
+    assert len(solutions(ours)) == 1
+    solution, reference = ours(), scipy_lm()
+    assert solution.x.shape == (3,) and solution.jac.shape == (rows, 3) and solution.grad.shape == (3,)
+    assert solution.cost == pytest.approx(reference.cost, rel=1e-9)

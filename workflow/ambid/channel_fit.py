@@ -787,11 +787,34 @@ def _refine(rigid, flexible, factors, residual, x, data, sigma, lowpass, delay, 
         j = np.vstack([j.real, j.imag])
         return np.where(np.isfinite(j), j, 0.0)
 
-    solution = scipy.optimize.least_squares(residuals, theta, jac=jacobian, method="lm", max_nfev=max_iterations,
-                                            x_scale="jac", ftol=1e-7, xtol=1e-7)
+    solution = _levenberg_marquardt(residuals, jacobian, theta, max_iterations)
     if not np.all(np.isfinite(solution.x)):
         raise FitError("the output-error refinement diverged")
     return solution, layout, sign
+
+
+def _levenberg_marquardt(residuals, jacobian, theta, max_iterations):
+    """MINPACK's Levenberg-Marquardt (`scipy.optimize.least_squares`, ``method="lm"``), the same bytes in every process.
+
+    scipy 1.15-1.17's C translation of MINPACK reads one value past the end of its Jacobian array where ``qrfac``
+    recomputes the norm of the last column after heavy cancellation (valgrind: an 8-byte read 0 bytes after the
+    block, in ``enorm`` called from ``qrfac``).  That value is whatever the heap left there, so one fit could give
+    one of two results from one process to the next (hs_eden_like's multisine DY/DY: 1e-12 apart in its poles).
+    The fit is handed one more parameter with an identically zero Jacobian column: a zero column is last in the
+    pivoting, never moved and never renormalized, so the read never happens; the parameter does not enter the
+    residuals and is dropped from the result.
+    """
+    def padded_residuals(th):
+        return residuals(th[:-1])
+
+    def padded_jacobian(th):
+        j = jacobian(th[:-1])
+        return np.hstack([j, np.zeros((j.shape[0], 1))])
+
+    solution = scipy.optimize.least_squares(padded_residuals, np.append(theta, 0.0), jac=padded_jacobian, method="lm",
+                                            max_nfev=max_iterations, x_scale="jac", ftol=1e-7, xtol=1e-7)
+    solution.x, solution.jac, solution.grad = solution.x[:-1], solution.jac[:, :-1], solution.grad[:-1]
+    return solution
 
 
 def _cost(result):
