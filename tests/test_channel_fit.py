@@ -313,7 +313,7 @@ def test_a_pole_zero_dipole_is_flagged_not_a_mode():
 
 
 def test_the_refinement_does_not_depend_on_what_the_heap_held():
-    """scipy 1.15-1.17's C MINPACK reads one value past its Jacobian (``qrfac`` renormalizing the last column after
+    """scipy 1.17.1's C MINPACK reads one value past its Jacobian (``qrfac`` renormalizing the last column after
     cancellation): a fit could give one of two results from one process to the next.  The refinement's solver
     (`_levenberg_marquardt`) must give the same bytes whatever the freed memory next to that array holds."""
     import scipy.optimize

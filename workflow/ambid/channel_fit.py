@@ -796,13 +796,16 @@ def _refine(rigid, flexible, factors, residual, x, data, sigma, lowpass, delay, 
 def _levenberg_marquardt(residuals, jacobian, theta, max_iterations):
     """MINPACK's Levenberg-Marquardt (`scipy.optimize.least_squares`, ``method="lm"``), the same bytes in every process.
 
-    scipy 1.15-1.17's C translation of MINPACK reads one value past the end of its Jacobian array where ``qrfac``
+    scipy 1.17.1's MINPACK (its C translation) reads one value past the end of its Jacobian array where ``qrfac``
     recomputes the norm of the last column after heavy cancellation (valgrind: an 8-byte read 0 bytes after the
     block, in ``enorm`` called from ``qrfac``).  That value is whatever the heap left there, so one fit could give
     one of two results from one process to the next (hs_eden_like's multisine DY/DY: 1e-12 apart in its poles).
     The fit is handed one more parameter with an identically zero Jacobian column: a zero column is last in the
     pivoting, never moved and never renormalized, so the read never happens; the parameter does not enter the
-    residuals and is dropped from the result.
+    residuals and is dropped from the result.  It changes the path, not the problem: with a singular ``R`` MINPACK
+    starts its search for the damping parameter from zero, so results move within the tolerances (``ftol``,
+    ``xtol`` 1e-7), and more where ``max_iterations`` ends the search (stop 56: the multisine NX/NX third mode
+    2761.5 -> 2762.4 Hz, both at the cap of 200).
     """
     def padded_residuals(th):
         return residuals(th[:-1])
