@@ -344,10 +344,16 @@ def test_the_refinement_does_not_depend_on_what_the_heap_held():
         found = set()
         for poison in (0.0, 1.0, 1e3):
             for extra in range(3):
-                # memory freed just before, of the sizes the solver asks for: one of its arrays lands where they were
-                freed = [np.full(3 * rows + extra + k, poison) for k in range(-4, 5) for _ in range(20)]
-                del freed
+                # memory freed just before, of the sizes the solver asks for, kept apart by live spacers (so the
+                # allocator does not merge it): one of the solver's arrays lands where it was
+                poisoned, spacers = [], []
+                for k in range(-4, 5):
+                    for _ in range(20):
+                        poisoned.append(np.full(3 * rows + extra + k, poison))
+                        spacers.append(np.ones(4))
+                del poisoned
                 found.add(solve().x.tobytes())
+                del spacers
         return found
 
     if len(solutions(scipy_lm)) == 1:
@@ -356,3 +362,19 @@ def test_the_refinement_does_not_depend_on_what_the_heap_held():
     solution, reference = ours(), scipy_lm()
     assert solution.x.shape == (3,) and solution.jac.shape == (rows, 3) and solution.grad.shape == (3,)
     assert solution.cost == pytest.approx(reference.cost, rel=1e-9)
+
+
+def test_a_refinement_stopped_at_its_cap_says_so():
+    """A fit whose search ends at ``max_iterations`` is not converged: the fit stage says so where its features are read."""
+    from ambid.channel_fit import fit_verdict
+
+    truth = truth_channel()
+    g = noisy(truth.frequency_response(F), 0.01, seed=3)
+    std = 0.01 * np.abs(g)
+    converged = fit_channel(F, g, std=std)
+    assert converged.converged and converged.iterations < 200
+    assert "not_converged" not in [f.code for f in fit_verdict(converged, F, g, None, "DX/DX")[1]]
+    stopped = fit_channel(F, g, std=std, max_iterations=3)
+    assert not stopped.converged and stopped.iterations >= 3
+    flag, findings = fit_verdict(stopped, F, g, None, "DX/DX")
+    assert flag == "" and [(f.severity, f.code) for f in findings if f.code == "not_converged"] == [("warning", "not_converged")]

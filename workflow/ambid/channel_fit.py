@@ -167,6 +167,9 @@ class ChannelFit:
         What was dropped from the starting fit and why.
     delay_std_s : float
         Standard uncertainty of the fitted delay [s] (NaN: not known).
+    converged : bool
+        Whether the refinement met its tolerances.  False: it stopped at ``max_iterations``, and
+        its features depend on where the search stopped, beyond their stated uncertainties.
     """
 
     model: ChannelModel
@@ -178,6 +181,7 @@ class ChannelFit:
     dropped: list = field(default_factory=list)
     selected_hz: np.ndarray = field(default_factory=lambda: np.array([]))
     delay_std_s: float = np.nan
+    converged: bool = True
 
 
 #: A fitted delay is negative (non-causal) when it lies this many standard uncertainties below zero: hs_eden_like's
@@ -603,7 +607,7 @@ def fit_channel(frequency_hz, response, std=None, known=None, n_rigid=RIGID_MODE
     cost = _cost(best)
     features = _features(model, best, omega, band)
     return ChannelFit(model, features, diagram, order, cost, int(solution.nfev), dropped, np.asarray(mode_hz),
-                      _delay_std_s(best, omega))
+                      _delay_std_s(best, omega), converged=bool(solution.status > 0))
 
 
 def _fit_structure(problem, mode_hz, zero_band=1.5):
@@ -960,8 +964,9 @@ def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_
         structure compensates something it lacks) or ``""``.  Features of a flagged channel are
         not used by the model update.
     findings : list of ambid.findings.Finding
-        One per flag, and one per in-band "resonance" damped more than `OVERDAMPED` (no mode: a
-        pole pair the fit needed elsewhere; flagged ``overdamped`` by `feature_rows`).
+        One per flag, one where the refinement stopped at its evaluation cap (``not_converged``),
+        and one per in-band "resonance" damped more than `OVERDAMPED` (no mode: a pole pair the
+        fit needed elsewhere; flagged ``overdamped`` by `feature_rows`).
     """
     model = channel_fit.model
     fitted = model.frequency_response(frequency_hz, known)
@@ -980,6 +985,12 @@ def fit_verdict(channel_fit, frequency_hz, response, known, label, max_chi2=MAX_
                                 + (f" +- {1e6 * channel_fit.delay_std_s:.2g}" if np.isfinite(channel_fit.delay_std_s) else "")
                                 + " us < 0: a non-causal fit, its structure compensates something it lacks; its features "
                                 "are not used by the model update", model.delay_s))
+    if not channel_fit.converged:
+        findings.append(Finding("fit", "warning", "not_converged", label,
+                                f"the output-error refinement stopped at its cap of {channel_fit.iterations} evaluations "
+                                "before its tolerances were met: its resonances and anti-resonances depend on where the "
+                                "search stopped, beyond their stated uncertainties (another solver path moved hs_eden_like's "
+                                "multisine NX/NX third mode by 1.2 of its standard deviations)", channel_fit.iterations))
     for row in channel_fit.features:
         if row["kind"] == "resonance" and row["damping_ratio"] > OVERDAMPED:
             findings.append(Finding("fit", "warning", "overdamped", label,
