@@ -386,3 +386,14 @@ def test_a_refinement_stopped_at_its_cap_says_so():
     assert not stopped.converged and stopped.iterations >= 3
     flag, findings = fit_verdict(stopped, F, g, None, "DX/DX")
     assert flag == "" and [(f.severity, f.code) for f in findings if f.code == "not_converged"] == [("warning", "not_converged")]
+
+
+def test_the_refinement_solves_as_many_residuals_as_parameters():
+    """MINPACK needs at least as many residuals as parameters; the solver's padding parameter must not take that away."""
+    from ambid.channel_fit import _levenberg_marquardt
+
+    matrix = np.array([[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 4.0]])
+    data = np.array([1.0, 2.0, 3.0])
+    solution = _levenberg_marquardt(lambda theta: matrix @ theta - data, lambda theta: matrix, np.zeros(3), 100)
+    assert_allclose(solution.x, np.linalg.solve(matrix, data), rtol=1e-9)
+    assert solution.fun.shape == (3,) and solution.jac.shape == (3, 3) and solution.grad.shape == (3,)

@@ -817,21 +817,28 @@ def _levenberg_marquardt(residuals, jacobian, theta, max_iterations):
     one of two results from one process to the next (hs_eden_like's multisine DY/DY: 1e-12 apart in its poles).
     The fit is handed one more parameter with an identically zero Jacobian column: a zero column is last in the
     pivoting, never moved and never renormalized, so the read never happens; the parameter does not enter the
-    residuals and is dropped from the result.  It changes the path, not the problem: with a singular ``R`` MINPACK
+    residuals and is dropped from the result (with one zero residual more where the data have no more residuals
+    than parameters: MINPACK needs at least as many).  It changes the path, not the problem: with a singular ``R`` MINPACK
     starts its search for the damping parameter from zero, so results move within the tolerances (``ftol``,
     ``xtol`` 1e-7), and more where ``max_iterations`` ends the search (stop 56: the multisine NX/NX third mode
     2761.5 -> 2762.4 Hz, both at the cap of 200).
     """
+    extra_row = np.size(residuals(theta)) < np.size(theta) + 1
+
     def padded_residuals(th):
-        return residuals(th[:-1])
+        r = residuals(th[:-1])
+        return np.append(r, 0.0) if extra_row else r
 
     def padded_jacobian(th):
         j = jacobian(th[:-1])
-        return np.hstack([j, np.zeros((j.shape[0], 1))])
+        j = np.hstack([j, np.zeros((j.shape[0], 1))])
+        return np.vstack([j, np.zeros((1, j.shape[1]))]) if extra_row else j
 
     solution = scipy.optimize.least_squares(padded_residuals, np.append(theta, 0.0), jac=padded_jacobian, method="lm",
                                             max_nfev=max_iterations, x_scale="jac", ftol=1e-7, xtol=1e-7)
-    solution.x, solution.jac, solution.grad = solution.x[:-1], solution.jac[:, :-1], solution.grad[:-1]
+    rows = solution.fun.size - int(extra_row)
+    solution.x, solution.grad = solution.x[:-1], solution.grad[:-1]
+    solution.fun, solution.jac = solution.fun[:rows], solution.jac[:rows, :-1]
     return solution
 
 
