@@ -818,10 +818,10 @@ def _levenberg_marquardt(residuals, jacobian, theta, max_iterations):
     The fit is handed one more parameter with an identically zero Jacobian column: a zero column is last in the
     pivoting, never moved and never renormalized, so the read never happens; the parameter does not enter the
     residuals and is dropped from the result (with one zero residual more where the data have no more residuals
-    than parameters: MINPACK needs at least as many).  It changes the path, not the problem: with a singular ``R`` MINPACK
-    starts its search for the damping parameter from zero, so results move within the tolerances (``ftol``,
-    ``xtol`` 1e-7), and more where ``max_iterations`` ends the search (stop 56: the multisine NX/NX third mode
-    2761.5 -> 2762.4 Hz, both at the cap of 200).
+    than parameters: MINPACK needs at least as many).  It changes the path, not the problem: with a singular ``R``
+    MINPACK starts its search for the damping parameter from zero, so results move within the tolerances
+    (``ftol``, ``xtol`` 1e-7), and more where ``max_iterations`` ends the search (stop 56: the multisine NX/NX
+    third mode 2761.5 -> 2762.4 Hz, both at the then cap of 200).
     """
     extra_row = np.size(residuals(theta)) < np.size(theta) + 1
 
