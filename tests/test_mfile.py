@@ -398,7 +398,8 @@ def check_total(text):
         assert matrix.dtype == np.complex128 and matrix.ndim == 2 and np.isfinite(matrix).all()
 
 
-ALPHABET = st.one_of(st.sampled_from("[]0123456789ijeE+-.;,%= \t\n\r'()*xIfNa_d"), st.characters())
+# any character a UTF-8 file can hold (a lone surrogate cannot be written: the file test failed on U+D800, stop 56)
+ALPHABET = st.one_of(st.sampled_from("[]0123456789ijeE+-.;,%= \t\n\r'()*xIfNa_d"), st.characters(exclude_categories=("Cs",)))
 PREFIXES = st.sampled_from(["", "data_exc_dx = [", "data_exc_dx = [1 2;\n", "data_exc_z = [\n1.5+2i "])
 FRAGMENTS = st.sampled_from(
     ["data_exc_dx", "data_exc_ny", " = ", "[", "]", ";", ",", "\n", "\r\n", " ", "...", "%", "%{", "1", "-2.5",
