@@ -16,40 +16,66 @@ from .machine import ALL_AXES, BEARINGS, RADIAL_AXES, machine_from_config
 from .plant import Plant
 from .rig import RigModel, rig_from_config
 
-__all__ = ["SIGNATURE_FLOOR", "effect_signature", "hidden_effect_draws", "hidden_effect_rig", "identify_on_rig"]
+__all__ = ["SIGNATURE_FLOOR", "effect_signature", "measured_floor", "hidden_effect_draws", "hidden_effect_rig",
+           "identify_on_rig"]
 
 
 #: Relative floor of the signature of a hidden effect (`effect_signature`): what the stepped sine typically resolves.
 SIGNATURE_FLOOR = {"positions": 0.01, "currents": 0.003}
 
 
-def effect_signature(machine, effects):
-    """How far ``effects`` move the model's response, in units of a typical floor: the largest ``|dG| / sigma``.
+def effect_signature(machine, effects, floor=None):
+    """How far ``effects`` move the model's response, in units of the data floor: the largest ``|dG| / sigma``.
 
-    Over the radial matrix, the axial channel and the coil currents of
-    ``machine``'s grids; ``sigma = floor max(|G|, |G_oo| / 10)`` with the relative
-    floors of `SIGNATURE_FLOOR` and ``G_oo`` the output's own diagonal response (a
-    channel the model has at zero, or an anti-resonance, is measured no better
-    than a tenth of its row allows).  A hidden effect of signature 3 changes some
-    points by three times the floor: the weak end of what a diagnosis should see.
+    A hidden effect of signature 3 changes some point by three times the floor:
+    the weak end of what a diagnosis should see.
+
+    Parameters
+    ----------
+    machine : ambid.machine.Machine
+    effects : sequence of ambid.effects.Effect
+    floor : dict, optional
+        The floor measured in a log of ``machine`` without the effects, ``{(output, input): (frequency_hz, sigma)}``
+        (`measured_floor`): the signature on every channel of that log, at its frequencies, in units of its
+        ``sigma``.  Without it, a typical floor over the radial matrix, the axial channel and the coil currents of
+        ``machine``'s grids: ``sigma = floor max(|G|, |G_oo| / 10)``, the relative floors of `SIGNATURE_FLOOR` and
+        ``G_oo`` the output's own diagonal response.  That typical floor is far from a measured one: on
+        hs_eden_like's rig (seed 2051, 80 points) the coil currents' measured floor is about a fiftieth of it, and at
+        a diagonal's anti-resonance, where ``G_oo`` vanishes with ``G``, the measured floor is up to 130 times it
+        (the noise of the positions does not vanish there), so a drawn effect could change no measured point by more
+        than a third of its floor and still have a typical signature of 20.
     """
     from .compare import model_response
     from .diagnose import plant_with_effects
 
     plant = Plant(machine)
-    radial, axial = machine.radial_grid.frequency_hz, machine.axial_grid.frequency_hz
-    keys = {(o, i): (radial,) for o in RADIAL_AXES for i in RADIAL_AXES}
-    keys[("Z", "Z")] = (axial,)
-    keys.update({(f"I_{a}", a): (radial,) for a in RADIAL_AXES})
+    if floor is not None:
+        keys = {key: (frequency,) for key, (frequency, _) in floor.items()}
+    else:
+        radial, axial = machine.radial_grid.frequency_hz, machine.axial_grid.frequency_hz
+        keys = {(o, i): (radial,) for o in RADIAL_AXES for i in RADIAL_AXES}
+        keys[("Z", "Z")] = (axial,)
+        keys.update({(f"I_{a}", a): (radial,) for a in RADIAL_AXES})
     before = model_response(plant, keys)
     after = model_response(plant_with_effects(plant, list(effects)), keys)
     worst = 0.0
     for key, values in before.items():
-        floor = SIGNATURE_FLOOR["currents" if key[0].startswith("I_") else "positions"]
-        row = np.abs(before[(key[0], key[0])]) if key[0] in RADIAL_AXES else np.abs(values)
-        sigma = floor * np.maximum(np.abs(values), 0.1 * row)
+        if floor is not None:
+            sigma = floor[key][1]
+        else:
+            relative = SIGNATURE_FLOOR["currents" if key[0].startswith("I_") else "positions"]
+            row = np.abs(before[(key[0], key[0])]) if key[0] in RADIAL_AXES else np.abs(values)
+            sigma = relative * np.maximum(np.abs(values), 0.1 * row)
         worst = max(worst, float(np.max(np.abs(after[key] - values) / sigma)))
     return worst
+
+
+def measured_floor(table):
+    """The floor of an identification's FRF table as `effect_signature` reads it: ``{(output, input): (frequency_hz,
+    sigma)}`` of every channel the diagnosis reads (`ambid.compare.measured_channels`: noise and systematic floor)."""
+    from .compare import measured_channels
+
+    return {key: (frequency, sigma) for key, (frequency, _, sigma) in measured_channels(table).items()}
 
 
 def _log_bisection(holds, inside, outside, steps):
@@ -64,11 +90,11 @@ def _log_bisection(holds, inside, outside, steps):
     return float(np.exp(lo))
 
 
-def _weak_end(machine, build, strong, weak, target=3.0):
+def _weak_end(machine, build, strong, weak, target=3.0, floor=None):
     """The strength between ``strong`` and ``weak`` (log scale) where the signature falls to ``target``."""
-    if effect_signature(machine, [build(weak)]) >= target:
+    if effect_signature(machine, [build(weak)], floor) >= target:
         return weak
-    return _log_bisection(lambda v: effect_signature(machine, [build(v)]) >= target, strong, weak, 30)
+    return _log_bisection(lambda v: effect_signature(machine, [build(v)], floor) >= target, strong, weak, 30)
 
 
 def _admissible(plant):
@@ -101,7 +127,7 @@ def _admissible_end(machine, build, strong, end):
     return float(np.exp(boundary + 0.1 * (np.log(end) - boundary)))
 
 
-def hidden_effect_draws(machine_config, seed=2026, target=3.0):
+def hidden_effect_draws(machine_config, seed=2026, target=3.0, floor=None):
     """One hidden effect per library entry, its strength drawn from physical ranges down to a signature of ``target``.
 
     Physical ranges of AMB machines: amplifier bandwidth from 500 Hz, controller
@@ -117,6 +143,16 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     end is pulled back where it would leave no commissioned machine (a closed
     loop unstable or in ISO 14839-3 zone D, `_admissible_end`): a machine that
     cannot levitate is not identified.
+
+    Parameters
+    ----------
+    machine_config : dict
+    seed : int
+    target : float
+        The weak end's signature.
+    floor : dict, optional
+        The floor measured in a log of the machine without an effect (`measured_floor`): the signature in units of it
+        (the issue's "down to three times the data floor"); without it, a typical floor (`effect_signature`).
 
     Returns
     -------
@@ -136,7 +172,7 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
         """Parameters with ``key`` drawn between ``strong`` and the weak end (``transform=None``: the strength itself)."""
         fixed = fixed or {}
         build = build or (lambda v: effect(name, {**fixed, key: transform(v)}))
-        end = _weak_end(machine, build, strong, weak, target)
+        end = _weak_end(machine, build, strong, weak, target, floor)
         strong = _admissible_end(machine, build, strong, end)
         value = float(np.exp(rng.uniform(*sorted((np.log(strong), np.log(end))))))
         return value if transform is None else {**fixed, key: transform(value)}
@@ -172,7 +208,8 @@ def hidden_effect_draws(machine_config, seed=2026, target=3.0):
     draws["actuator_coefficients"] = {"force_constant_scale": tuple(float(v) for v in 1 + actuator * spread[0]),
                                       "bias_current_scale": tuple(float(v) for v in 1 + actuator * spread[1])}
     draws["noncollocation"]["nde_offset_m"] = shift_sign[1] * abs(draws["noncollocation"]["de_offset_m"]) * float(rng.uniform(0.5, 1.5))
-    draws["signature"] = {name: effect_signature(machine, [effect(name, parameters)]) for name, parameters in draws.items()}
+    draws["signature"] = {name: effect_signature(machine, [effect(name, parameters)], floor)
+                          for name, parameters in draws.items()}
     return draws
 
 
