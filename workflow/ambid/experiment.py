@@ -43,7 +43,7 @@ def effect_signature(machine, effects, floor=None):
         hs_eden_like's rig (seed 2051, 80 points) the coil currents' measured floor is about a fiftieth of it, and at
         a diagonal's anti-resonance, where ``G_oo`` vanishes with ``G``, the measured floor is up to 130 times it
         (the noise of the positions does not vanish there), so a drawn effect could change no measured point by more
-        than a third of its floor and still have a typical signature of 20.
+        than 0.4 of its floor and still have a typical signature of 11.
     """
     from .compare import model_response
     from .diagnose import plant_with_effects
