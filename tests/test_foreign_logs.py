@@ -104,11 +104,11 @@ def test_one_sensors_gain_is_unexplained_misfit_in_its_row(tmp_path):
     _, page = diagnosis_report(diagnosis, Plant(machine), measured, None, "sensor gain", repeated_steps=0)
     assert "no effect of the library brings positions output NX (all bands)" in page
     assert "Above the floor: positions output NX (all bands)" in page and "a gain error of the NX sensor" in page
-    # the per-axis actuator coefficients pass the at-floor threshold channel by channel, but the row above the floor keeps
-    # them from being chosen (stop 39: they were, and the verdict read "missing actuator_coefficients")
+    # the per-axis actuator coefficients pass the at-floor threshold channel by channel, but not outside the row above the
+    # floor, where they gain (stop 39: they were chosen, and the verdict read "missing actuator_coefficients")
     imitator = next(f for f in diagnosis.ranked if f.candidate.effect == "actuator_coefficients")
     assert imitator.channel_evidence > AT_FLOOR_EVIDENCE and not imitator.missing
-    assert "not chosen: an output row is above the floor" in page
+    assert "not chosen: an output row is above the floor, and outside it the candidate earns at most 100" in page
 
 
 def test_a_log_without_coil_currents_is_diagnosed_from_its_positions(tmp_path):

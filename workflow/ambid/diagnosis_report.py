@@ -417,7 +417,8 @@ def diagnosis_report(diagnosis, plant, measured, bands_hz, title, shown=8, repea
         elif diagnosis.base_at_floor and fitted.channel_evidence <= AT_FLOOR_EVIDENCE:
             verdict = f"within the floor (channel by channel at most {AT_FLOOR_EVIDENCE:g})"
         elif diagnosis.base_at_floor:  # an output row above the floor: misfit outside the library, `ambid.diagnose._Cells`
-            verdict = "not chosen: an output row is above the floor"
+            verdict = (f"not chosen: an output row is above the floor, and outside it the candidate earns at most "
+                       f"{AT_FLOOR_EVIDENCE:g}")
         else:
             verdict = "removes too little"
         lines.append(f"| {row.rank} | {row.candidate} | {_marked_bounds(fitted)} | {share_text(fitted.share)} | "
