@@ -434,12 +434,11 @@ def suite(seeds, radial_points, workers):
           f"of {len(library)}")
     print(f"the at-floor threshold (`ambid.diagnose.AT_FLOOR_EVIDENCE`, {AT_FLOOR_EVIDENCE:g}) tried lower on these "
           "diagnoses, one round only (what a first effect so named would bring beside it is not known):")
-    singles, negatives = by_kind("single"), by_kind("none")
-    single_names = [r["case"][2][0] for r, _ in results if r["case"][1] == "single"]
+    singles = [(r["case"][2][0], s) for r, s in results if r["case"][1] == "single"]  # (hidden effect, scores)
+    negatives = by_kind("none")
     for threshold in AT_FLOOR_TRIALS:
-        gained = sum(not s["top1"] and s["at_floor_choice"][threshold] == name for s, name in zip(singles, single_names))
-        wrong = sum(not s["top1"] and s["at_floor_choice"][threshold] not in (None, name)
-                    for s, name in zip(singles, single_names))
+        gained = sum(not s["top1"] and s["at_floor_choice"][threshold] == name for name, s in singles)
+        wrong = sum(not s["top1"] and s["at_floor_choice"][threshold] not in (None, name) for name, s in singles)
         false = sum(s["at_floor_choice"][threshold] is not None for s in negatives)
         print(f"  {threshold:5g}: top-1 {sum(s['top1'] for s in library) + gained} of {len(library)} "
               f"({gained} single draw(s) named at the floor, {wrong} named wrong), negative controls with something "
@@ -448,7 +447,6 @@ def suite(seeds, radial_points, workers):
     print(f"outside the library: nothing at a bound in {sum(s['no_bound'] for s in outside)} of {len(outside)}, "
           f"honest verdict (unexplained, or nothing for the invisible controller notch) in "
           f"{sum(s['honest'] for s in outside)} of {len(outside)}")
-    negatives = by_kind("none")
     print(f"negative controls with nothing missing: {sum(s['clean'] for s in negatives)} of {len(negatives)} "
           f"(with a lead: {', '.join(s['lead'] for s in negatives if s['lead']) or 'none'})")
     sampling = [r["sampling"] for r, _ in results]
