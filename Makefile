@@ -53,6 +53,7 @@ bench: $(STAMP) $(ROSS_STAMP)
 	$(BIN)/python benchmarks/bench_fit.py
 	$(BIN)/python benchmarks/bench_update.py
 	$(BIN)/python benchmarks/bench_diagnose.py
+	$(BIN)/python benchmarks/bench_floor.py
 	$(BIN)/python benchmarks/bench_foreign_logs.py
 	$(BIN)/python benchmarks/bench_extrapolation.py
 	$(BIN)/python benchmarks/bench_amplitude_limit.py

@@ -119,7 +119,7 @@ def test_a_floor_a_little_low_does_not_make_anything_missing(demo):
 
 
 def test_a_parameter_at_its_bound_is_never_missing_and_the_misfit_is_unexplained(demo):
-    # a 20 Hz current loop lies below the amplifier candidate's range (50 Hz - 100 kHz): its best fit runs into the bound
+    # a 20 Hz current loop lies below the amplifier candidate's range (50 Hz - 1 MHz): its best fit runs into the bound
     measured = synthetic_measurement(demo, [effect("amplifier_lowpass", cutoff_hz=20.0)])
     amplifier_only = [c for c in candidate_space(demo) if c.label == "amplifier_lowpass"]
     diagnosis = diagnose(demo, measured, candidates=amplifier_only)
