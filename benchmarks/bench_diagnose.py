@@ -179,11 +179,14 @@ hs_eden_like 2027's modal damping (3.2 floors, the truth's evidence 83, 80 chann
 itself as lead, and demo20 2050's delay (2.3 us, 3.4 floors, evidence 1550) "unexplained": no band cell is above the
 floor but the DY row is (1.514 against 1.5), and a row above the floor kept every candidate from being found
 channel by channel.  With a candidate's evidence counted outside the rows above the floor (`ambid.diagnose._Cells`)
-the delay is named (2.23 us; 4.1 % off): in sample and on 2050 every other row the same, 2050 top-1 50 of 50,
-parameters 48 and 50, misfit at the floor 50 of 50 (2040 and 2060 not re-run).  The at-floor threshold's trade-off: a lower `AT_FLOOR_EVIDENCE` (25, 50 or 75) names 2027's
-modal damping too and no negative control's lead.  Diagnosis median 4.0-4.4 s per rig (four suites on two cores);
+the delay is named (2.23 us; 4.1 % off) and every other row of the four samples reads the same (stop 58, all four
+re-run on the final code): top-1 49 / 50 / 50 / 50, parameters 46 / 49 / 48 / 50 and 49 / 50 / 50 / 50, within 2 std
+95 / 96 / 100 / 99 %, misfit at the floor 50 of 50 in all four.  The at-floor threshold's trade-off: a lower
+`AT_FLOOR_EVIDENCE` (25, 50 or 75) names 2027's modal damping too and no negative control's lead.  Diagnosis median 4.0-4.4 s per rig (four suites on two cores);
 the default machine's variants take the same time with the wider search (hs_eden_like nominal 16.3 s against 15.8 s
-in the same run).  About 50 minutes for the four samples side by side on two cores.
+in the same run; stop 58 on an idle machine: hs_eden_like 14.2 / 13.7 / 6.3 / 4.6 / 3.1 s for nominal, amplifier,
+updated, delay, actuator, demo20 5.6 and 3.9 s; the thesis case 0.49997, 0.69993, 1.30005, 2.2-2.6 s each).  About
+45-50 minutes for the four samples side by side on two cores.
 """
 
 import concurrent.futures
