@@ -136,6 +136,18 @@ class TestTwoLevel:
         assert np.allclose(dx["systematic_std"], 0.03 * np.hypot(dx["re"], dx["im"]))
         assert all(floors.loc[floors["family"] == "positions", "method"].str.contains("fallback"))
 
+    def test_the_floor_states_the_noise_it_compares_with(self):
+        # the log's noise on the positions is 1e-4 |1 + j f / 300| of DX/DX (1e-5 m/A over the plant) and 3.3 times
+        # that on the outputs at 0.3 of it: each band's median lies between the two; its floor, the 3 % constant, far
+        # above it (what the frf stage's finding says a user cannot see)
+        frame = synthetic_log(kappa=0.004, noise=1e-4, repeat_ratio=None)
+        _, floors, _ = frf_from_log(frame, FloorSettings(fallback_floor=(("positions", 0.03), ("axial", 0.02),
+                                                                       ("currents", 0.002))))
+        for row in floors[floors["family"] == "positions"].itertuples():
+            lever = np.abs(1 + 1j * np.array([row.band_lo_hz, row.band_hi_hz]) / 300)
+            assert 0.8e-4 * lever[0] < row.noise_relative_median < 1.2e-4 / 0.3 * lever[1], row
+            assert row.relative_median > 20 * row.noise_relative_median
+
 
 def siso_dx(table):
     dx = table[(table["estimator"] == "siso") & (table["output"] == "DX") & (table["input"] == "DX")].sort_values("frequency_hz")

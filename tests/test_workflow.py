@@ -179,6 +179,9 @@ def test_real_logs_in_thesis_m_format(workdir):
     assert info["metadata"]["repeated_steps"] == 0
     findings = pd.read_csv(workdir / "results/demo20/frf/mine01/findings.tsv", sep="\t")
     assert "no_repeats" in set(findings["code"])
+    # and each band at the documented constant says how far above the log's own noise that is
+    fallback = findings[findings["code"] == "floor_fallback"]
+    assert len(fallback) and fallback["message"].str.contains("times the noise there").all(), fallback["message"]
 
 
 def test_unknown_top_level_key_is_rejected(workdir):

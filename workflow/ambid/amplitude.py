@@ -713,7 +713,7 @@ def account_zero_amplitude(floors, table, extrapolated):
 
     Adds ``zero_amplitude_points`` (rows that took the extrapolated value) and
     ``zero_amplitude`` to ``method`` where there are any, and recomputes the
-    relative systematic error's median and p90 over the band's rows as they are now.
+    relative systematic error's median and p90, and the relative noise's median, over the band's rows as they are now.
     """
     floors = floors.copy()
     floors["zero_amplitude_points"] = 0
@@ -724,6 +724,7 @@ def account_zero_amplitude(floors, table, extrapolated):
     magnitude = np.hypot(table["re"], table["im"]).to_numpy()
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # (a row reading 0 has no relative error)
         relative = np.where(magnitude > 0, table["systematic_std"].to_numpy() / magnitude, np.nan)
+    noise = table["std"].to_numpy() if "noise_relative_median" in floors else None
     for k, row in floors.iterrows():
         inside = (families == row["family"]) & (frequency >= row["band_lo_hz"]) & (frequency < row["band_hi_hz"])
         count = int(np.count_nonzero(inside & extrapolated))
@@ -735,4 +736,8 @@ def account_zero_amplitude(floors, table, extrapolated):
         values = values[np.isfinite(values)]
         floors.loc[k, "relative_median"] = float(np.median(values)) if values.size else np.nan
         floors.loc[k, "relative_p90"] = float(np.quantile(values, 0.9)) if values.size else np.nan
+        if noise is not None:  # the extrapolated points carry the noise their extrapolation propagates
+            signal = inside & (magnitude > RESOLVED * noise)
+            floors.loc[k, "noise_relative_median"] = float(np.median(noise[signal] / magnitude[signal])) \
+                if signal.any() else np.nan
     return floors

@@ -563,7 +563,9 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
         A copy with ``systematic_std`` set on every row.
     floors : pandas.DataFrame
         One row per family and band: ``family, band, band_lo_hz, band_hi_hz, points, method, pairs,
-        smooth_fit_points, noise_scale, relative_median, relative_p90`` (of ``systematic_std / |G|``).
+        smooth_fit_points, noise_scale, relative_median, relative_p90`` (of ``systematic_std / |G|``),
+        ``noise_relative_median`` (of ``std / |G|`` where the response stands out of its noise, ``RESOLVED``: what
+        the floor compares with; NaN where no point does).
 
     Notes
     -----
@@ -639,6 +641,8 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
     table["std"] = noise * noise_scale
     # the smooth-fit method: step-to-step systematic scatter, sqrt(scatter - noise), per channel and band
     smooth_systematic = noise * np.sqrt(excess)
+    signal = magnitude > RESOLVED * table["std"].to_numpy()  # a cross channel inside its noise says nothing of its size
+    noise_relative = table["std"].to_numpy() / np.maximum(magnitude, 1e-300)
     rows = []
     for family in [f for f in FAMILIES + ("other",) if f in edges]:
         labels = band_labels(edges[family])
@@ -659,6 +663,8 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
                          "points": int(inside.sum()), "method": " + ".join(methods), "pairs": int(pairs[inside].max()),
                          "smooth_fit_points": int(from_scatter.sum()), "noise_scale": float(np.median(noise_scale[inside])),
                          "relative_median": float(np.median(relative)),
-                         "relative_p90": float(np.quantile(relative, 0.9))})
+                         "relative_p90": float(np.quantile(relative, 0.9)),
+                         "noise_relative_median": float(np.median(noise_relative[inside & signal]))
+                         if (inside & signal).any() else np.nan})
     table["systematic_std"] = systematic
     return table, pd.DataFrame(rows)

@@ -58,10 +58,14 @@ for row in floors.itertuples():
     if "fallback" in row.method:
         also = (f", or the step-to-step scatter beyond the noise where larger ({row.smooth_fit_points} points)"
                 if "smooth_fit" in row.method else "")
+        noise = getattr(row, "noise_relative_median", np.nan)
+        blind = (f", {row.relative_median / noise:.3g} times the noise there ({100 * noise:.3g} %): a difference "
+                 "between model and machine smaller than the floor is not seen; repeat some steps at a lower amplitude "
+                 "to measure it" if noise > 0 and row.relative_median > noise else "")
         findings.append(Finding("frf", "note", "floor_fallback", f"{row.family} {row.band}",
                                 f"no repeated steps here: the systematic floor is the documented constant "
-                                f"(config frf.fallback_floor){also}; median {100 * row.relative_median:.3g} % of |G|",
-                                row.relative_median))
+                                f"(config frf.fallback_floor){also}; median {100 * row.relative_median:.3g} % of |G|"
+                                f"{blind}", row.relative_median))
     if getattr(row, "zero_amplitude_points", 0):
         log.info("  %d of %d points extrapolated to zero amplitude from the repeats", row.zero_amplitude_points, row.points)
     if row.noise_scale < 1:
