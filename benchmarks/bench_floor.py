@@ -75,21 +75,21 @@ def rig_model(machine, calibration):
 def rig_response(rig, channels):
     """The rig's exact sampled FRF on the measured channels: positions from U2 to the sensor samples, coil currents
     ``I = (I_upper - I_lower) / 2`` from U2 as `ambid.rig.RigModel.step` logs them."""
-    system, out, positions = rig.system, {}, {}
+    system, out, positions, currents = rig.system, {}, {}, {}
     for (output, input_axis), (frequency, _, _) in channels.items():
-        column = ALL_AXES.index(input_axis)
+        column, grid = ALL_AXES.index(input_axis), frequency.tobytes()
         if output in ALL_AXES:
-            grid = frequency.tobytes()
             if grid not in positions:
                 positions[grid] = rig.sampled_frequency_response(frequency)
             out[(output, input_axis)] = positions[grid][:, ALL_AXES.index(output), column]
             continue
+        if grid not in currents:  # the current sampled at the start of cycle k: the state x_k, the command held from k - 1
+            z = np.exp(2j * np.pi * frequency * system.sample_time_s)
+            gamma = system.input_matrix[:, : len(ALL_AXES)]
+            state = np.array([np.linalg.solve(zk * np.eye(system.n_states) - system.transition, gamma) for zk in z])
+            currents[grid] = system.coil_state @ state + system.coil_input / z[:, None, None]
         row = ALL_AXES.index(output.removeprefix("I_"))  # a coil current, ``I_<axis>``
-        z = np.exp(2j * np.pi * frequency * system.sample_time_s)
-        gamma = system.input_matrix[:, column]
-        state = np.array([np.linalg.solve(zk * np.eye(system.n_states) - system.transition, gamma) for zk in z])
-        # the current sampled at the start of cycle k: the state x_k and the command held from cycle k - 1
-        out[(output, input_axis)] = state @ system.coil_state[row] + system.coil_input[row, column] / z
+        out[(output, input_axis)] = currents[grid][:, row, column]
     return out
 
 

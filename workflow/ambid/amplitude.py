@@ -65,8 +65,8 @@ the interpolation's error already counts, and the stated noise stays.  This is b
 import numpy as np
 import scipy.special
 
-from .floor import (RESOLVED, FloorSettings, excitation_amplitude_squared, family_of, level_pairs, local_fits, pool_windows,
-                    resonance_ratio)
+from .floor import (RESOLVED, FloorSettings, excitation_amplitude_squared, family_of, level_pairs, local_fits,
+                    noise_relative_median, pool_windows, resonance_ratio)
 from .logs import run_matrix
 from .machine import RADIAL_AXES
 
@@ -737,7 +737,5 @@ def account_zero_amplitude(floors, table, extrapolated):
         floors.loc[k, "relative_median"] = float(np.median(values)) if values.size else np.nan
         floors.loc[k, "relative_p90"] = float(np.quantile(values, 0.9)) if values.size else np.nan
         if noise is not None:  # the extrapolated points carry the noise their extrapolation propagates
-            signal = inside & (magnitude > RESOLVED * noise)
-            floors.loc[k, "noise_relative_median"] = float(np.median(noise[signal] / magnitude[signal])) \
-                if signal.any() else np.nan
+            floors.loc[k, "noise_relative_median"] = noise_relative_median(magnitude, noise, inside)
     return floors

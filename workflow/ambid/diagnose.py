@@ -418,8 +418,8 @@ class _Cells:
         return float(2 * np.sum(gain) - parameters * np.log(2 * before.size))
 
     def outside_rows(self, rows_above):
-        """The points outside the output rows flagged in ``rows_above`` (a mask over the cells)."""
-        return ~np.isin(self.row_index, np.flatnonzero(rows_above & self.rows))
+        """The points outside the output rows flagged in ``rows_above`` (a mask over the cells, set on row cells only)."""
+        return ~np.isin(self.row_index, np.flatnonzero(rows_above))
 
     def excess(self, residual, cells):
         """Excess over the floor, ``sum n max(chi2 - 1, 0)``, in the given cells (boolean mask)."""
@@ -1036,9 +1036,12 @@ def _rank(fitted, chi2, residual, evaluator, settings):
         f.channel_evidence = cells.channel_evidence(residual, f.residual, len(f.candidate.free))
         f.significant = f.evidence > INDISTINGUISHABLE_BIC
         f.share = (1.0 - cells.excess(f.residual, above) / excess) if excess > 0 else 0.0
-        material = (f.share >= settings.min_share if above.any()
-                    else f.channel_evidence > AT_FLOOR_EVIDENCE if not row_above
-                    else cells.channel_evidence(residual, f.residual, len(f.candidate.free), outside) > AT_FLOOR_EVIDENCE)
+        if above.any():
+            material = f.share >= settings.min_share
+        elif row_above:
+            material = cells.channel_evidence(residual, f.residual, len(f.candidate.free), outside) > AT_FLOOR_EVIDENCE
+        else:
+            material = f.channel_evidence > AT_FLOOR_EVIDENCE
         f.missing = bool(f.significant and material and not f.at_bound)
     fitted.sort(key=lambda f: (not f.missing, -f.evidence))
     at_floor = {id(f): not cells.above(cells.chi2(f.residual), settings.floor_limit).any() for f in fitted}

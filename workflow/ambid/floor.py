@@ -66,7 +66,7 @@ from .machine import AXIAL_AXIS, RADIAL_AXES
 __all__ = ["FAMILIES", "RESOLVED", "resolved", "FloorSettings", "family_of", "frequency_bands", "band_labels", "level_pairs",
            "amplitude_coefficients", "excitation_amplitude_squared", "local_coefficient", "peak_coefficient",
            "resonance_ratio", "local_fits", "smooth_fit_ratio", "channel_smooth_fit_ratio", "pooled_noise",
-           "pool_variance", "pool_windows", "systematic_floor"]
+           "pool_variance", "pool_windows", "noise_relative_median", "systematic_floor"]
 
 _KEYS = ["estimator", "output", "input"]
 
@@ -410,6 +410,14 @@ def channel_smooth_fit_ratio(frequency_hz, values, std, half_width=3):
                             half_width)
 
 
+def noise_relative_median(magnitude, std, rows):
+    """The median of ``std / |G|`` over ``rows`` (a mask) where the response stands out of its noise (`RESOLVED`): the
+    noise a band's floor stands on (``floor.tsv``'s ``noise_relative_median``).  A cross channel inside its noise says
+    nothing of the noise's size against a response; NaN where no row stands out."""
+    signal = rows & (magnitude > RESOLVED * std)
+    return float(np.median(std[signal] / magnitude[signal])) if signal.any() else np.nan
+
+
 def resolved(magnitude, std):
     """Whether a channel's response stands out of its noise: its median ``|G| / std`` above `RESOLVED`.
 
@@ -641,8 +649,6 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
     table["std"] = noise * noise_scale
     # the smooth-fit method: step-to-step systematic scatter, sqrt(scatter - noise), per channel and band
     smooth_systematic = noise * np.sqrt(excess)
-    signal = magnitude > RESOLVED * table["std"].to_numpy()  # a cross channel inside its noise says nothing of its size
-    noise_relative = table["std"].to_numpy() / np.maximum(magnitude, 1e-300)
     rows = []
     for family in [f for f in FAMILIES + ("other",) if f in edges]:
         labels = band_labels(edges[family])
@@ -664,7 +670,6 @@ def systematic_floor(table, arrays, low_table=None, low_arrays=None, settings=Fl
                          "smooth_fit_points": int(from_scatter.sum()), "noise_scale": float(np.median(noise_scale[inside])),
                          "relative_median": float(np.median(relative)),
                          "relative_p90": float(np.quantile(relative, 0.9)),
-                         "noise_relative_median": float(np.median(noise_relative[inside & signal]))
-                         if (inside & signal).any() else np.nan})
+                         "noise_relative_median": noise_relative_median(magnitude, table["std"].to_numpy(), inside)})
     table["systematic_std"] = systematic
     return table, pd.DataFrame(rows)
